@@ -1,0 +1,269 @@
+"""Run configuration: frozen dataclasses whose fields each carry a one-line docstring.
+
+YAML files in ``configs/`` hold values only. ``load_config`` rejects an unknown key, a value of the
+wrong type or a missing file with one line naming it (``ConfigError``). Each component receives
+only its own section (``cfg.collection`` for workers, ``cfg.training`` for the learner, ...), and
+the resolved config is written next to every run as ``config.yaml``.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import inspect
+import os
+import textwrap
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A config file or override is invalid; the message is one line naming the culprit."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    domain: str = "multiroom"
+    """Domain to meta-train on: ``multiroom`` or ``relocation``."""
+    train_split: str = "train"
+    """Versioned split whose tasks are collected on during meta-training."""
+    max_train_tasks: int = 0
+    """Use only the first N tasks of the training split (0 uses all of them)."""
+    correction_kind: str = "subgoal"
+    """Correction oracle variant (multiroom: subgoal, directional, binary, all; relocation: mixed)."""
+
+
+@dataclass(frozen=True)
+class CollectionConfig:
+    num_workers: int = 2
+    """Rollout actors on Ray (ignored with --serial, which runs one in-process worker)."""
+    num_corrections: int = 5
+    """Corrections per task per round; a task gets at most num_corrections + 1 attempts."""
+    tasks_per_unit: int = 64
+    """Tasks in one work unit; a worker steps all of them in lockstep with one batched forward."""
+    greedy_actions: bool = False
+    """Act with the policy's most likely action instead of sampling during collection."""
+    max_unit_retries: int = 3
+    """How often a failed work unit is handed out again before the round fails."""
+
+
+@dataclass(frozen=True)
+class BufferConfig:
+    capacity_tuples: int = 1_000_000
+    """First-in-first-out capacity of the training view, in labelled states."""
+    location: str = ""
+    """Buffer root (local path or fsspec URL); empty puts it at RUN_DIR/buffer."""
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    variant: str = "gpl"
+    """gpl, instruction_only, full_information, no_instruction, no_trajectory or latest_correction."""
+    embedding_dim: int = 16
+    """Size of the word embeddings shared by the instruction and correction modules."""
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    num_rounds: int = 10
+    """DAgger rounds (collect, commit, train) to run."""
+    num_epochs_per_round: int = 5
+    """Full passes over the committed buffer view after each round's collection."""
+    learning_rate: float = 1e-3
+    """Adam learning rate."""
+    batch_size: int = 512
+    """Labelled states per gradient step."""
+    device: str = "auto"
+    """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
+    num_threads: int = 0
+    """Torch intra-op threads in the learner (0 leaves torch's default)."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    split: str = "test"
+    """Split of held-out tasks for meta-testing."""
+    num_corrections: int = 5
+    """Corrections given at meta-test time (completion is reported after 0..num_corrections)."""
+    seeds: tuple[int, ...] = (0, 1, 2)
+    """Seeds of the meta-test repetitions; the table reports their mean."""
+    greedy_actions: bool = True
+    """Act greedily at meta-test time (False samples from the policy)."""
+    max_tasks: int = 0
+    """Evaluate only the first N tasks of the split (0 evaluates all of them)."""
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    seed: int = 0
+    """Seed of the run; tasks, rollouts, corrections and weights derive theirs from it."""
+    env: EnvConfig = field(default_factory=EnvConfig)
+    """Domain and task selection."""
+    collection: CollectionConfig = field(default_factory=CollectionConfig)
+    """Rollout workers."""
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    """Sharded buffer."""
+    model: ModelConfig = field(default_factory=ModelConfig)
+    """GPL network and its variants."""
+    training: TrainingConfig = field(default_factory=TrainingConfig)
+    """Central learner."""
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    """Meta-test evaluation."""
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each field of dataclass ``cls`` (fields without one are absent)."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
+    body = tree.body[0].body  # type: ignore[attr-defined]
+    docs: dict[str, str] = {}
+    for stmt, nxt in zip(body, body[1:]):
+        if isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name):
+            if isinstance(nxt, ast.Expr) and isinstance(nxt.value, ast.Constant) and isinstance(nxt.value.value, str):
+                docs[stmt.target.id] = nxt.value.value.strip()
+    return docs
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", str(tp))
+
+
+def _coerce(value: Any, tp: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a mapping for section, got {type(value).__name__}")
+        return _build(tp, value, where)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list, got {type(value).__name__} {value!r}")
+        item_tp = args[0]
+        return tuple(_coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected bool, got {type(value).__name__} {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            # 1e6 is a float in YAML; accept it when it is integral, as people write buffer sizes so.
+            if isinstance(value, float) and value.is_integer():
+                return int(value)
+            raise ConfigError(f"{where}: expected int, got {type(value).__name__} {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected float, got {type(value).__name__} {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected str, got {type(value).__name__} {value!r}")
+        return value
+    raise ConfigError(f"{where}: unsupported config type {_type_name(tp)}")
+
+
+def _build(cls: type, values: Mapping[str, Any], where: str) -> Any:
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in values:
+        if key not in names:
+            prefix = f"{where}." if where else ""
+            raise ConfigError(f"unknown config key '{prefix}{key}' (known: {', '.join(sorted(names))})")
+    kwargs = {}
+    for key, value in values.items():
+        kwargs[key] = _coerce(value, hints[key], f"{where}.{key}" if where else key)
+    return cls(**kwargs)
+
+
+def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>") -> RunConfig:
+    """Build a ``RunConfig`` from nested mappings; unspecified fields keep their defaults."""
+    values = values or {}
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{source}: top level must be a mapping, got {type(values).__name__}")
+    try:
+        cfg = _build(RunConfig, values, "")
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
+    validate(cfg, source)
+    return cfg
+
+
+def _set_override(tree: dict, dotted: str, raw: str) -> None:
+    keys = dotted.split(".")
+    node = tree
+    for key in keys[:-1]:
+        node = node.setdefault(key, {})
+        if not isinstance(node, dict):
+            raise ConfigError(f"override {dotted}: '{key}' is not a section")
+    node[keys[-1]] = yaml.safe_load(raw)
+
+
+def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | None = None) -> RunConfig:
+    """Load a YAML config, then apply ``overrides`` (dotted key -> YAML-typed value string)."""
+    tree: dict = {}
+    source = "<defaults>"
+    if path is not None:
+        p = Path(path)
+        source = str(p)
+        if not p.is_file():
+            raise ConfigError(f"config file not found: {p}")
+        try:
+            tree = yaml.safe_load(p.read_text()) or {}
+        except yaml.YAMLError as err:
+            mark = getattr(err, "problem_mark", None)
+            line = f" line {mark.line + 1}" if mark is not None else ""
+            raise ConfigError(f"{p}:{line} is not valid YAML") from None
+        if not isinstance(tree, dict):
+            raise ConfigError(f"{p}: top level must be a mapping")
+    for dotted, raw in (overrides or {}).items():
+        _set_override(tree, dotted, raw)
+    return config_from_dict(tree, source)
+
+
+_VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction")
+
+
+def validate(cfg: RunConfig, source: str = "<config>") -> None:
+    """Range checks that types alone do not catch."""
+    checks = [
+        (cfg.env.domain in ("multiroom", "relocation"), f"env.domain must be multiroom or relocation, got '{cfg.env.domain}'"),
+        (cfg.model.variant in _VARIANTS, f"model.variant must be one of {', '.join(_VARIANTS)}, got '{cfg.model.variant}'"),
+        (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
+        (cfg.collection.num_corrections >= 0, "collection.num_corrections must be >= 0"),
+        (cfg.collection.tasks_per_unit >= 1, "collection.tasks_per_unit must be at least 1"),
+        (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
+        (cfg.training.num_rounds >= 1, "training.num_rounds must be at least 1"),
+        (cfg.training.num_epochs_per_round >= 0, "training.num_epochs_per_round must be >= 0"),
+        (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),
+        (cfg.training.batch_size >= 1, "training.batch_size must be at least 1"),
+        (cfg.training.device in ("auto", "cpu", "cuda"), f"training.device must be auto, cpu or cuda, got '{cfg.training.device}'"),
+        (cfg.eval.num_corrections >= 0, "eval.num_corrections must be >= 0"),
+        (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(f"{source}: {message}")
+
+
+def config_to_dict(cfg: Any) -> dict:
+    """Plain nested dict of a config (tuples become lists), for YAML."""
+    out = {}
+    for f in dataclasses.fields(cfg):
+        value = getattr(cfg, f.name)
+        if dataclasses.is_dataclass(value):
+            value = config_to_dict(value)
+        elif isinstance(value, tuple):
+            value = list(value)
+        out[f.name] = value
+    return out
+
+
+def save_config(cfg: RunConfig, path: str | os.PathLike) -> None:
+    """Write the resolved config as YAML (atomically, so a crash never leaves half a file)."""
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.tmp")
+    tmp.write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
+    os.replace(tmp, p)
