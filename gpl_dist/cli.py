@@ -1,0 +1,165 @@
+"""The ``gpl-dist`` command: train, eval, render, inspect, clean.
+
+Heavy imports (torch, Ray, storage) happen inside each subcommand so ``gpl-dist --help`` is fast.
+Expected errors (bad config, missing run, bad task id) print one line and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+
+def _overrides(pairs: list[str]) -> dict[str, str]:
+    out = {}
+    for pair in pairs:
+        if "=" not in pair:
+            raise ValueError(f"--set takes KEY=VALUE (e.g. training.num_rounds=3), got '{pair}'")
+        key, value = pair.split("=", 1)
+        out[key.strip()] = value
+    return out
+
+
+def _buffer_root(path: str) -> str:
+    """A run dir's buffer root (its config may point elsewhere), or ``path`` itself."""
+    p = Path(path)
+    if (p / "config.yaml").is_file():
+        from gpl_dist.config import load_config
+        location = load_config(p / "config.yaml").buffer.location
+        return location or str(p / "buffer")
+    if "://" in path:
+        return path
+    if not p.exists():
+        raise FileNotFoundError(f"no run directory or buffer at {path}")
+    return str(p / "buffer") if (p / "buffer").is_dir() else str(p)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from gpl_dist.config import load_config
+    from learner.driver import run_training
+
+    overrides = _overrides(args.set)
+    if args.num_workers is not None:
+        overrides["collection.num_workers"] = str(args.num_workers)
+    config_path = args.config
+    if config_path is None:
+        if not args.resume:
+            raise ValueError("--config is required (unless --resume, which reuses RUN_DIR/config.yaml)")
+        config_path = Path(args.run_dir) / "config.yaml"
+    cfg = load_config(config_path, overrides)
+    result = run_training(cfg, args.run_dir, serial=args.serial, address=args.address, resume=args.resume,
+                          progress=not args.no_progress)
+    if result.history:
+        last = result.history[-1]
+        print("\nfinal round, training tasks (mean completion after k corrections):")
+        for k, v in enumerate(last["completion_by_corrections"]):
+            print(f"  c{k}: {v:.3f}")
+        print(f"run saved to {result.run_dir}; evaluate with: gpl-dist eval --run-dir {result.run_dir}")
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from learner.evaluate import format_table, evaluate_run
+
+    seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
+    result = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
+                          max_tasks=args.max_tasks, checkpoint=args.checkpoint)
+    import json
+    domain = json.loads((Path(args.run_dir) / "eval.json").read_text())["domain"]
+    print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
+    print(format_table(domain, result))
+    print(f"wrote {Path(args.run_dir) / 'eval.json'} and {Path(args.run_dir) / 'eval.png'}")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from gpl_dist.rendering import attempt_frames, parse_actions, write_picture
+
+    actions = parse_actions(args.actions) if args.actions else None
+    frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
+    out = write_picture(frames, args.out)
+    print(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''})")
+    return 0
+
+
+def cmd_inspect(args: argparse.Namespace) -> int:
+    from storage import format_inspection
+
+    print(format_inspection(_buffer_root(args.run_dir), show_tasks=args.tasks))
+    return 0
+
+
+def cmd_clean(args: argparse.Namespace) -> int:
+    from storage import clean_leftovers
+
+    removed = clean_leftovers(_buffer_root(args.run_dir), dry_run=args.dry_run)
+    verb = "would remove" if args.dry_run else "removed"
+    for path in removed:
+        print(f"{verb} {path}")
+    print(f"{verb} {len(removed)} leftover file(s)")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="gpl-dist", description="Guiding Policies with Language: distributed DAgger meta-training.")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)")
+    p.add_argument("--config", help="YAML config (see configs/)")
+    p.add_argument("--run-dir", required=True, help="where the buffer, checkpoints and metrics go")
+    p.add_argument("--num-workers", type=int, help="rollout actors (overrides collection.num_workers)")
+    p.add_argument("--address", help="join an existing Ray cluster (e.g. 'auto') instead of starting a local one")
+    p.add_argument("--serial", action="store_true", help="run one worker in this process, without Ray")
+    p.add_argument("--resume", action="store_true", help="continue from the run dir's last checkpoint")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("eval", help="meta-test a trained run on held-out tasks (Algorithm 2)")
+    p.add_argument("--run-dir", required=True)
+    p.add_argument("--corrections", type=int, help="corrections to give (default: eval.num_corrections)")
+    p.add_argument("--seeds", help="comma-separated seeds (default: eval.seeds)")
+    p.add_argument("--split", help="task split (default: eval.split)")
+    p.add_argument("--max-tasks", type=int, help="evaluate only the first N tasks")
+    p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+    p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("render", help="draw a task (PNG) or an attempt (GIF)")
+    p.add_argument("--env", required=True, choices=["multiroom", "relocation"])
+    p.add_argument("--task", required=True, type=int)
+    p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
+    p.add_argument("--actions", help="actions of the attempt: '0,1,3,...' or a file holding them")
+    p.add_argument("--expert", action="store_true", help="draw the expert's attempt")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("inspect", help="summarise a run's committed buffer")
+    p.add_argument("run_dir")
+    p.add_argument("--tasks", action="store_true", help="add a per-task table")
+    p.set_defaults(func=cmd_inspect)
+
+    p = sub.add_parser("clean", help="remove leftovers of dead writers (never committed data)")
+    p.add_argument("run_dir")
+    p.add_argument("--dry-run", action="store_true")
+    p.set_defaults(func=cmd_clean)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from gpl_dist.config import ConfigError
+
+    try:
+        return args.func(args)
+    except (ConfigError, ValueError, FileNotFoundError, FileExistsError) as err:
+        print(f"gpl-dist: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,256 @@
+"""The GPL network (paper §4 and appendix "Training and Architecture Details") and its variants.
+
+Three modules:
+
+- **instruction module**: shared word embeddings -> 1-D CNN -> MLP, giving ``z_im``;
+- **correction module**: for every earlier attempt ``j`` of the task, its trajectory subsampled every
+  ``trajectory_stride`` states goes through a per-state encoder and a 1-D CNN over time -> MLP; the
+  correction given after it goes through the shared embeddings, a 1-D CNN and an MLP; each
+  (trajectory, correction) pair goes through an MLP, and the pairs are averaged: ``z_cm``;
+- **policy module**: state encoder, concatenated with ``z_im`` and ``z_cm`` -> MLP -> action logits.
+
+``z_im`` and ``z_cm`` depend only on the attempt, not on the state, so ``encode_conditioning`` runs
+once per attempt in a batch (``Conditioning`` holds one row per distinct attempt) and
+``forward`` gathers the rows each state needs.
+
+Variants (``ModelConfig.variant``): ``gpl`` (the paper's model), ``instruction_only`` (no correction
+module), ``full_information`` (the instruction is the full-information text, no corrections),
+``no_instruction``, ``no_trajectory`` and ``latest_correction`` (only the newest pair) ablations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from gpl_dist.roles import DomainSpec
+
+VARIANTS_WITHOUT_CORRECTIONS = ("instruction_only", "full_information")
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Layer sizes of one domain (appendix values)."""
+
+    state_channels: tuple[int, ...]  # 2-D CNN filters of the policy's state encoder (grid obs)
+    state_mlp: tuple[int, ...]
+    traj_state_channels: tuple[int, ...]  # 2-D CNN filters of the per-state trajectory encoder
+    traj_state_mlp: tuple[int, ...]
+    traj_conv: int  # 1-D CNN filters over time
+    traj_mlp: tuple[int, ...]
+    text_conv: int  # 1-D CNN filters over words
+    correction_mlp: tuple[int, ...]
+    instruction_mlp: tuple[int, ...]
+    pair_mlp: tuple[int, ...]
+    policy_mlp: tuple[int, ...]
+
+
+SIZES = {
+    "multiroom": Sizes(
+        state_channels=(8, 8), state_mlp=(32, 32),
+        traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),
+        text_conv=4, correction_mlp=(16, 4), instruction_mlp=(16, 32),
+        pair_mlp=(32, 32), policy_mlp=(64, 64),
+    ),
+    "relocation": Sizes(
+        state_channels=(), state_mlp=(),
+        traj_state_channels=(), traj_state_mlp=(), traj_conv=8, traj_mlp=(16, 8),
+        text_conv=4, correction_mlp=(16, 16), instruction_mlp=(16, 16),
+        pair_mlp=(32, 32), policy_mlp=(256, 256, 256),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Conditioning:
+    """What an attempt is conditioned on, one row per distinct attempt (``A`` rows).
+
+    Attributes:
+        instruction_ids: int64 ``(A, L)``.
+        trajectories: ``(A, K, S, *O)`` subsampled earlier attempts (obs dtype), K slots.
+        correction_ids: int64 ``(A, K, L)`` the correction given after each earlier attempt.
+        mask: bool ``(A, K)`` which slots hold an earlier attempt.
+    """
+
+    instruction_ids: torch.Tensor
+    trajectories: torch.Tensor
+    correction_ids: torch.Tensor
+    mask: torch.Tensor
+
+    def to(self, device: torch.device | str) -> "Conditioning":
+        return Conditioning(*(t.to(device, non_blocking=True) for t in
+                              (self.instruction_ids, self.trajectories, self.correction_ids, self.mask)))
+
+
+def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> tuple[nn.Sequential, int]:
+    layers: list[nn.Module] = []
+    d = in_dim
+    for i, h in enumerate(sizes):
+        layers.append(nn.Linear(d, h))
+        if final_activation or i < len(sizes) - 1:
+            layers.append(nn.ReLU())
+        d = h
+    return nn.Sequential(*layers), d
+
+
+class GridStateEncoder(nn.Module):
+    """uint8 grid ``(B, H, W, C)`` -> vector.
+
+    Each channel's integer value is looked up in its own embedding table (equivalent to a one-hot
+    encoding followed by a 1x1 convolution) so categorical codes are not read as magnitudes; then
+    2x2 convolutions and an MLP, as in the appendix.
+    """
+
+    def __init__(self, obs_shape: tuple[int, ...], channels: tuple[int, ...], mlp_sizes: tuple[int, ...]):
+        super().__init__()
+        h, w, c = obs_shape
+        self.num_channels = c
+        embed_dim = channels[0]
+        self.value_embedding = nn.Embedding(256 * c, embed_dim)
+        self.register_buffer("channel_offsets", torch.arange(c, dtype=torch.long) * 256, persistent=False)
+        convs: list[nn.Module] = []
+        d = embed_dim
+        for ch in channels:
+            convs += [nn.Conv2d(d, ch, kernel_size=2), nn.ReLU()]
+            d = ch
+            h, w = h - 1, w - 1
+        self.convs = nn.Sequential(*convs)
+        self.mlp, self.out_dim = mlp(mlp_sizes, d * h * w)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        idx = obs.long() + self.channel_offsets  # (B, H, W, C)
+        x = self.value_embedding(idx).sum(dim=-2)  # (B, H, W, E)
+        x = self.convs(x.permute(0, 3, 1, 2).contiguous())
+        return self.mlp(x.flatten(1))
+
+
+class VectorStateEncoder(nn.Module):
+    """float vector ``(B, D)`` -> the same vector, normalised by running statistics."""
+
+    def __init__(self, obs_shape: tuple[int, ...]):
+        super().__init__()
+        self.norm = nn.BatchNorm1d(obs_shape[0])
+        self.out_dim = obs_shape[0]
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.norm(obs.float())
+
+
+class TextEncoder(nn.Module):
+    """Token ids ``(B, L)`` -> vector: shared embeddings, 1-D CNN (kernel 2), MLP."""
+
+    def __init__(self, embedding: nn.Embedding, max_tokens: int, conv: int, mlp_sizes: tuple[int, ...]):
+        super().__init__()
+        self.embedding = embedding
+        self.conv = nn.Conv1d(embedding.embedding_dim, conv, kernel_size=2)
+        self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1))
+
+    def forward(self, ids: torch.Tensor) -> torch.Tensor:
+        x = self.embedding(ids).transpose(1, 2)  # (B, E, L)
+        x = torch.relu(self.conv(x))
+        return self.mlp(x.flatten(1))
+
+
+class TrajectoryEncoder(nn.Module):
+    """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
+
+    def __init__(self, domain: DomainSpec, sizes: Sizes):
+        super().__init__()
+        if len(domain.obs_shape) == 3:
+            self.state = GridStateEncoder(domain.obs_shape, sizes.traj_state_channels, sizes.traj_state_mlp)
+        else:
+            self.state = VectorStateEncoder(domain.obs_shape)
+        steps = domain.trajectory_samples
+        self.conv = nn.Conv1d(self.state.out_dim, sizes.traj_conv, kernel_size=min(2, steps))
+        self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1))
+
+    def forward(self, traj: torch.Tensor) -> torch.Tensor:
+        b, s = traj.shape[:2]
+        x = self.state(traj.reshape(b * s, *traj.shape[2:])).reshape(b, s, -1).transpose(1, 2)
+        x = torch.relu(self.conv(x))
+        return self.mlp(x.flatten(1))
+
+
+class GPLPolicy(nn.Module):
+    """The GPL network for one domain; ``variant`` selects the paper's baselines and ablations."""
+
+    def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16):
+        super().__init__()
+        self.domain_name = domain.name
+        self.variant = variant
+        sizes = SIZES[domain.name]
+        vocab = domain.vocabulary
+        self.embedding = nn.Embedding(vocab.size, embedding_dim, padding_idx=vocab.pad_id)
+        self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
+        self.correction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp)
+        self.trajectory = TrajectoryEncoder(domain, sizes)
+        self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim)
+        if len(domain.obs_shape) == 3:
+            self.state = GridStateEncoder(domain.obs_shape, sizes.state_channels, sizes.state_mlp)
+        else:
+            self.state = VectorStateEncoder(domain.obs_shape)
+        self.conditioning_dim = self.instruction.out_dim + pair_dim
+        head, head_dim = mlp(sizes.policy_mlp, self.state.out_dim + self.conditioning_dim)
+        self.head = nn.Sequential(head, nn.Linear(head_dim, domain.num_actions))
+
+    @property
+    def uses_corrections(self) -> bool:
+        return self.variant not in VARIANTS_WITHOUT_CORRECTIONS
+
+    def encode_conditioning(self, cond: Conditioning) -> torch.Tensor:
+        """``(A, conditioning_dim)``: ``[z_im, z_cm]`` for each attempt row of ``cond``."""
+        z_im = self.instruction(cond.instruction_ids)
+        if self.variant == "no_instruction":
+            z_im = torch.zeros_like(z_im)
+        a, k = cond.mask.shape
+        pair_dim = self.conditioning_dim - z_im.shape[1]
+        if not self.uses_corrections or k == 0 or not bool(cond.mask.any()):
+            return torch.cat([z_im, z_im.new_zeros(a, pair_dim)], dim=1)
+        mask = cond.mask
+        if self.variant == "latest_correction":
+            # keep only the newest filled slot of each row
+            newest = mask.long().cumsum(1) == mask.long().sum(1, keepdim=True)
+            mask = mask & newest
+        slots = mask.nonzero(as_tuple=True)
+        # only filled slots are encoded: the empty ones would be thrown away by the mean anyway
+        traj = cond.trajectories[slots]
+        z_traj = self.trajectory(traj)
+        if self.variant == "no_trajectory":
+            z_traj = torch.zeros_like(z_traj)
+        z_corr = self.correction(cond.correction_ids[slots])
+        pairs = self.pair(torch.cat([z_traj, z_corr], dim=1))
+        summed = pairs.new_zeros(a, k, pairs.shape[1])
+        summed[slots] = pairs
+        counts = mask.sum(1, keepdim=True).clamp(min=1).to(pairs.dtype)
+        z_cm = summed.sum(1) / counts
+        return torch.cat([z_im, z_cm], dim=1)
+
+    def action_logits(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``."""
+        return self.head(torch.cat([self.state(obs), z], dim=1))
+
+    def forward(self, obs: torch.Tensor, cond: Conditioning, attempt_rows: torch.Tensor) -> torch.Tensor:
+        """Logits for states ``obs (B, *O)``; ``attempt_rows (B,)`` picks each state's row of ``cond``."""
+        z = self.encode_conditioning(cond)
+        return self.action_logits(obs, z[attempt_rows])
+
+
+def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None) -> GPLPolicy:
+    """A freshly initialised model (deterministic when ``seed`` is given)."""
+    if seed is not None:
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed(seed)
+            return GPLPolicy(domain, variant, embedding_dim)
+    return GPLPolicy(domain, variant, embedding_dim)
+
+
+def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
+    """Weights as plain numpy arrays: cheap to ``ray.put`` and safe to ship (no pickled code)."""
+    return {k: v.detach().cpu().numpy().copy() for k, v in model.state_dict().items()}
+
+
+def load_numpy_state(model: nn.Module, weights: dict[str, np.ndarray]) -> None:
+    model.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in weights.items()})

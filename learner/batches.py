@@ -1,0 +1,64 @@
+"""Turn the buffer's in-memory training view into model batches.
+
+The view is converted to torch tensors once per round (``TensorView``); a batch of state indices
+then becomes observations, labels, and one ``Conditioning`` row per distinct attempt among them,
+so each attempt's instruction and correction history is encoded once per batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from gpl_dist.models.gpl import Conditioning
+
+
+@dataclass(frozen=True)
+class TensorView:
+    """Torch views (no copies) of a ``storage.TrainingView``.
+
+    Attributes:
+        observations: ``(N, *O)`` states.
+        expert_actions: int64 ``(N,)`` labels.
+        attempt_rows: int64 ``(N,)`` each state's attempt row.
+        instruction_ids: int64 ``(A, L)``.
+        correction_ids: int64 ``(A, L)``.
+        context_rows: int64 ``(A, K)`` rows of the earlier attempts, -1 padded.
+        trajectories: ``(A, S, *O)`` subsampled attempts.
+    """
+
+    observations: torch.Tensor
+    expert_actions: torch.Tensor
+    attempt_rows: torch.Tensor
+    instruction_ids: torch.Tensor
+    correction_ids: torch.Tensor
+    context_rows: torch.Tensor
+    trajectories: torch.Tensor
+
+    @classmethod
+    def from_view(cls, view) -> "TensorView":
+        t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+        return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
+                   t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
+                   t(view.trajectories))
+
+    @property
+    def num_states(self) -> int:
+        return int(self.expert_actions.shape[0])
+
+    def batch(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor]:
+        """``(observations, labels, conditioning, attempt_rows_in_conditioning)`` of states ``idx``."""
+        rows = self.attempt_rows[idx]
+        uniq, inverse = torch.unique(rows, return_inverse=True)
+        ctx = self.context_rows[uniq]
+        mask = ctx >= 0
+        safe = ctx.clamp(min=0)
+        cond = Conditioning(
+            instruction_ids=self.instruction_ids[uniq],
+            trajectories=self.trajectories[safe],
+            correction_ids=self.correction_ids[safe],
+            mask=mask,
+        )
+        return self.observations[idx], self.expert_actions[idx], cond, inverse

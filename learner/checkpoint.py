@@ -1,0 +1,92 @@
+"""Atomic checkpoints: model, optimiser, round, RNG states and the resolved config.
+
+Written to a temporary name and renamed, so a driver killed mid-write leaves the previous
+checkpoint intact. Loaded with ``torch.load(..., weights_only=True)``: a checkpoint can hold
+tensors and plain Python values only, never code.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+LATEST = "latest.pt"
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A loaded checkpoint.
+
+    Attributes:
+        round_index: last round whose training finished.
+        policy_version: version number of the weights.
+        model_state: the model's state dict.
+        optimizer_state: the Adam state dict.
+        rng_state: torch and numpy global RNG states and the learner's batch generator.
+        config: the resolved run config as a plain dict.
+        history: per-round metrics so far.
+    """
+
+    round_index: int
+    policy_version: int
+    model_state: dict
+    optimizer_state: dict
+    rng_state: dict
+    config: dict
+    history: list
+
+
+def capture_rng(generator: torch.Generator) -> dict:
+    np_state = np.random.get_state()
+    return {
+        "torch": torch.get_rng_state(),
+        "generator": generator.get_state(),
+        "numpy": {"key": torch.from_numpy(np_state[1].astype(np.int64)), "pos": int(np_state[2]),
+                  "has_gauss": int(np_state[3]), "cached_gaussian": float(np_state[4])},
+    }
+
+
+def restore_rng(state: dict, generator: torch.Generator) -> None:
+    torch.set_rng_state(state["torch"])
+    generator.set_state(state["generator"])
+    n = state["numpy"]
+    np.random.set_state(("MT19937", n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+
+
+def save_checkpoint(directory: str | os.PathLike, ckpt: Checkpoint, keep_round_copy: bool = True) -> Path:
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    payload: dict[str, Any] = {
+        "round_index": ckpt.round_index, "policy_version": ckpt.policy_version,
+        "model_state": ckpt.model_state, "optimizer_state": ckpt.optimizer_state,
+        "rng_state": ckpt.rng_state, "config": ckpt.config, "history": ckpt.history,
+    }
+    tmp = d / f".{LATEST}.tmp-{os.getpid()}"
+    torch.save(payload, tmp)
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    if keep_round_copy:
+        round_path = d / f"round-{ckpt.round_index:06d}.pt"
+        round_tmp = d / f".{round_path.name}.tmp-{os.getpid()}"
+        shutil.copyfile(tmp, round_tmp)
+        os.replace(round_tmp, round_path)
+    final = d / LATEST
+    os.replace(tmp, final)
+    return final
+
+
+def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
+    """Load a checkpoint file or the latest one in a directory (``weights_only=True``)."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / LATEST
+    if not p.is_file():
+        raise FileNotFoundError(f"no checkpoint at {p}")
+    raw = torch.load(p, map_location="cpu", weights_only=True)
+    return Checkpoint(**raw)

@@ -1,0 +1,145 @@
+"""Meta-test evaluation (paper Algorithm 2) on held-out tasks.
+
+For every test task and seed: attempt 0 with the instruction alone, then a correction from the
+oracle after each attempt, up to ``num_corrections``; a task stops once solved and carries its
+completion forward. Actions are greedy by default (``eval.greedy_actions``): the paper does not
+say, and greedy actions make the reported numbers a property of the weights rather than of the
+sampling noise. The expert is not queried. Writes ``eval.json`` and ``eval.png`` to the run dir.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from gpl_dist.config import RunConfig, config_from_dict
+from gpl_dist.domains import get_domain
+from gpl_dist.models.gpl import state_dict_to_numpy
+from gpl_dist.seeding import derive_seed
+from gpl_dist.splits import split_tasks
+from learner.checkpoint import load_checkpoint
+from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
+
+# Table 1 (GPL, c0..c5) and Table 3 (c7, c10) of the paper, mean completion on test tasks.
+PAPER_COMPLETION = {
+    "multiroom": {0: 0.066, 1: 0.46, 2: 0.65, 3: 0.73, 4: 0.77, 5: 0.82, 7: 0.83, 10: 0.86},
+    "relocation": {0: 0.65, 1: 0.80, 2: 0.84, 3: 0.85, 4: 0.88, 5: 0.90, 7: 0.91, 10: 0.95},
+}
+PAPER_BASELINES = {
+    "multiroom": {"instruction": 0.075, "full_information": 0.73},
+    "relocation": {"instruction": 0.64, "full_information": 0.96},
+}
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Meta-test results.
+
+    Attributes:
+        completion: mean completion after 0..K corrections, averaged over seeds.
+        completion_std: standard deviation over seeds of each entry.
+        success: fraction of tasks solved after 0..K corrections, averaged over seeds.
+        per_seed: completion curve of each seed.
+        num_tasks: tasks evaluated per seed.
+        seconds: wall time.
+    """
+
+    completion: list
+    completion_std: list
+    success: list
+    per_seed: list
+    num_tasks: int
+    seconds: float
+
+
+def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seeds: tuple[int, ...], split: str,
+                    max_tasks: int = 0, greedy: bool = True, chunk: int = 128) -> EvalResult:
+    domain = get_domain(cfg.env.domain)
+    tasks = split_tasks(domain.name, split)
+    if max_tasks:
+        tasks = tasks[:max_tasks]
+    settings = RolloutSettings(num_corrections=num_corrections, greedy_actions=greedy,
+                               correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
+                               embedding_dim=cfg.model.embedding_dim, label_states=False)
+    worker = RolloutWorker(domain, settings, worker_id="eval")
+    worker.set_weights(weights, 0)
+    start = time.perf_counter()
+    max_attempts = num_corrections + 1 if worker.model.uses_corrections else 1
+    curves, successes = [], []
+    for seed in seeds:
+        attempts = []
+        for s in range(0, len(tasks), chunk):
+            attempts += worker.collect(tasks[s:s + chunk], split, derive_seed(seed, 0xE7A1))
+        curves.append(completion_by_attempt(attempts, max_attempts))
+        succ = {}
+        for a in attempts:
+            succ.setdefault(a.task_id, np.zeros(max_attempts, dtype=bool))
+            if a.success:
+                succ[a.task_id][a.attempt_index:] = True
+        successes.append(np.mean(list(succ.values()), axis=0))
+    curves_arr = np.array(curves)
+    return EvalResult(completion=curves_arr.mean(0).tolist(), completion_std=curves_arr.std(0).tolist(),
+                      success=np.mean(successes, axis=0).tolist(), per_seed=curves_arr.tolist(),
+                      num_tasks=len(tasks), seconds=time.perf_counter() - start)
+
+
+def format_table(domain: str, result: EvalResult) -> str:
+    paper = PAPER_COMPLETION.get(domain, {})
+    lines = [f"{'corrections':>11} {'completion':>10} {'± std':>7} {'success':>8} {'paper':>6}"]
+    for k, (c, sd, s) in enumerate(zip(result.completion, result.completion_std, result.success)):
+        p = f"{paper[k]:.3f}" if k in paper else "-"
+        lines.append(f"{'c' + str(k):>11} {c:10.3f} {sd:7.3f} {s:8.3f} {p:>6}")
+    return "\n".join(lines)
+
+
+def plot(domain: str, result: EvalResult, path: Path, title: str) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ks = np.arange(len(result.completion))
+    fig, ax = plt.subplots(figsize=(5, 3.5), dpi=120)
+    ax.errorbar(ks, result.completion, yerr=result.completion_std, marker="o", capsize=3, label="gpl-dist")
+    paper = PAPER_COMPLETION.get(domain, {})
+    pk = [k for k in ks if k in paper]
+    if pk:
+        ax.plot(pk, [paper[k] for k in pk], "s--", color="grey", label="paper (GPL)")
+    ax.set_xlabel("corrections")
+    ax.set_ylabel("mean completion (test tasks)")
+    ax.set_ylim(0, 1.02)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
+                 split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None) -> EvalResult:
+    """Evaluate a run's latest (or given) checkpoint; writes eval.json and eval.png."""
+    run_dir = Path(run_dir)
+    ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
+    cfg = config_from_dict(ckpt.config, str(run_dir / "config.yaml"))
+    from gpl_dist.models.gpl import build_model
+    model = build_model(get_domain(cfg.env.domain), cfg.model.variant, cfg.model.embedding_dim)
+    model.load_state_dict(ckpt.model_state)
+    k = cfg.eval.num_corrections if num_corrections is None else num_corrections
+    split = split or cfg.eval.split
+    result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=k, seeds=seeds or cfg.eval.seeds,
+                             split=split, max_tasks=cfg.eval.max_tasks if max_tasks is None else max_tasks,
+                             greedy=cfg.eval.greedy_actions)
+    payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
+               "round": ckpt.round_index, "num_corrections": k, "seeds": list(seeds or cfg.eval.seeds),
+               "greedy_actions": cfg.eval.greedy_actions, "num_tasks": result.num_tasks,
+               "completion": result.completion, "completion_std": result.completion_std,
+               "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
+               "paper_completion": {str(k2): v for k2, v in PAPER_COMPLETION.get(cfg.env.domain, {}).items()}}
+    (run_dir / "eval.json").write_text(json.dumps(payload, indent=1) + "\n")
+    plot(cfg.env.domain, result, run_dir / "eval.png",
+         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {ckpt.round_index}")
+    return result

@@ -1,0 +1,111 @@
+"""The central learner: supervised training on expert labels over the committed buffer view.
+
+Each round trains ``num_epochs_per_round`` epochs over the whole view (the paper's "five epochs
+over the data buffer"), minimising the cross-entropy between the policy and the expert's action
+with Adam. The view sits in memory for all epochs: the disk is read once per round.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from torch import nn
+
+from gpl_dist.config import TrainingConfig
+from learner.batches import TensorView
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` picks CUDA when present."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise RuntimeError("training.device is cuda but no CUDA device is available")
+    return torch.device(name)
+
+
+@dataclass(frozen=True)
+class RoundStats:
+    """What one round of training did.
+
+    Attributes:
+        loss: mean cross-entropy over the last epoch.
+        accuracy: fraction of states whose argmax action equals the expert's, last epoch.
+        num_states: states in the view.
+        num_steps: gradient steps taken.
+        seconds: wall time of the round's training.
+    """
+
+    loss: float
+    accuracy: float
+    num_states: int
+    num_steps: int
+    seconds: float
+
+
+class Learner:
+    """Trains a ``GPLPolicy``; implements ``gpl_dist.roles.Learner``."""
+
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0):
+        self.cfg = cfg
+        self.device = resolve_device(cfg.device)
+        if cfg.num_threads:
+            torch.set_num_threads(cfg.num_threads)
+        self.model = model.to(self.device)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=cfg.learning_rate)
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def weights(self) -> dict:
+        from gpl_dist.models.gpl import state_dict_to_numpy
+        return state_dict_to_numpy(self.model)
+
+    def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:
+        tv = view if isinstance(view, TensorView) else TensorView.from_view(view)
+        n = tv.num_states
+        start = time.perf_counter()
+        steps, loss_sum, correct, seen = 0, 0.0, 0, 0
+        self.model.train()
+        for epoch in range(self.cfg.num_epochs_per_round):
+            perm = torch.randperm(n, generator=self.generator)
+            loss_sum, correct, seen = 0.0, 0, 0
+            for b in range(math.ceil(n / self.cfg.batch_size)):
+                idx = perm[b * self.cfg.batch_size:(b + 1) * self.cfg.batch_size]
+                if idx.numel() < 2 and n >= 2:
+                    continue  # BatchNorm needs two samples
+                loss, hits = self.step(tv, idx)
+                loss_sum += loss * idx.numel()
+                correct += hits
+                seen += idx.numel()
+                steps += 1
+            if on_epoch is not None and seen:
+                on_epoch(epoch, loss_sum / seen, correct / seen)
+        self.model.eval()
+        return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,
+                          num_steps=steps, seconds=time.perf_counter() - start)
+
+    def step(self, tv: TensorView, idx: torch.Tensor) -> tuple[float, int]:
+        """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""
+        obs, labels, cond, rows = tv.batch(idx)
+        dev = self.device
+        logits = self.model(obs.to(dev), cond.to(dev), rows.to(dev))
+        labels = labels.to(dev)
+        loss = nn.functional.cross_entropy(logits, labels)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimizer.step()
+        return float(loss.detach()), int((logits.detach().argmax(1) == labels).sum())
+
+    @torch.no_grad()
+    def evaluate_loss(self, tv: TensorView, idx: torch.Tensor) -> float:
+        """Cross-entropy on states ``idx`` without updating (for tests and monitoring)."""
+        was_training = self.model.training
+        self.model.eval()
+        obs, labels, cond, rows = tv.batch(idx)
+        dev = self.device
+        loss = nn.functional.cross_entropy(self.model(obs.to(dev), cond.to(dev), rows.to(dev)), labels.to(dev))
+        self.model.train(was_training)
+        return float(loss)

@@ -1,0 +1,1 @@
+"""Rollout workers: the same class runs serially and inside Ray actors."""

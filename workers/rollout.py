@@ -1,0 +1,252 @@
+"""Rollout worker: steps many tasks in lockstep, labels every state, writes one shard per unit.
+
+For each task of a unit (Algorithm 1's inner loops): attempt 0 is conditioned on the instruction
+alone; after each attempt the correction oracle (beside the env, in this process) gives a
+correction, and the next attempt is conditioned on every earlier (trajectory, correction) pair,
+up to ``num_corrections`` corrections. A task stops once an attempt solves it. All tasks of the unit
+advance together, so each environment step costs one batched policy forward for the whole unit;
+the expert labels each visited state in-process. The unit's attempts go to the worker's own shard
+through the buffer writer, and only the shard's record is returned: bulk data never travels back
+through the caller.
+
+The same class runs in one process (``--serial``, tests) and inside a Ray actor
+(``learner.distributed``); nothing here imports Ray.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+
+from gpl_dist.corrections import make_corrector
+from gpl_dist.experts import make_expert
+from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model, load_numpy_state
+from gpl_dist.records import Attempt, WorkUnit
+from gpl_dist.roles import DomainSpec
+from gpl_dist.seeding import derive_rng, derive_seed
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RolloutSettings:
+    """What a worker needs to know, resolved from the run config's sections.
+
+    Attributes:
+        num_corrections: corrections per task; at most ``num_corrections + 1`` attempts.
+        greedy_actions: act with the most likely action instead of sampling.
+        correction_kind: correction oracle variant.
+        variant: model variant (decides the instruction text and whether corrections are used).
+        embedding_dim: word-embedding size of the model.
+        label_states: query the expert for every state (False at meta-test time).
+    """
+
+    num_corrections: int = 5
+    greedy_actions: bool = False
+    correction_kind: str = "default"
+    variant: str = "gpl"
+    embedding_dim: int = 16
+    label_states: bool = True
+
+
+class TaskFailure(RuntimeError):
+    """An env, expert or correction oracle raised for one task; carries the task id.
+
+    The worker drops the task from the unit (its attempts so far are kept only if complete) and
+    goes on with the others; ``RolloutWorker.failures`` lists what failed in the last unit.
+    """
+
+    def __init__(self, task_id: int, stage: str, cause: BaseException):
+        super().__init__(f"task {task_id}: {stage} failed: {type(cause).__name__}: {cause}")
+        self.task_id = task_id
+        self.stage = stage
+
+
+def sample_actions(logits: torch.Tensor, rng: np.random.Generator, greedy: bool) -> np.ndarray:
+    """int64 ``(B,)`` actions: argmax, or one draw per row from softmax(logits) with ``rng``."""
+    if greedy:
+        return logits.argmax(dim=1).numpy().astype(np.int64)
+    probs = torch.softmax(logits.double(), dim=1).numpy()
+    cdf = np.cumsum(probs, axis=1)
+    u = rng.random((probs.shape[0], 1)) * cdf[:, -1:]
+    return np.minimum((cdf < u).sum(axis=1), probs.shape[1] - 1).astype(np.int64)
+
+
+class RolloutWorker:
+    """Collects work units with the current weights; implements ``gpl_dist.roles.RolloutWorker``.
+
+    Args:
+        domain: the domain's spec.
+        settings: rollout settings.
+        writer: a ``storage.ShardWriter`` (anything with ``write_unit``); None for ``collect`` only.
+        worker_id: name recorded with every shard.
+        num_threads: torch intra-op threads for policy inference (0 leaves torch's default).
+    """
+
+    def __init__(self, domain: DomainSpec, settings: RolloutSettings, writer: Any = None,
+                 worker_id: str = "worker-0", num_threads: int = 0):
+        if num_threads:
+            torch.set_num_threads(num_threads)
+        self.domain = domain
+        self.settings = settings
+        self.writer = writer
+        self.worker_id = worker_id
+        self.model: GPLPolicy = build_model(domain, settings.variant, settings.embedding_dim)
+        self.model.eval()
+        self.policy_version = -1
+        self._corrector = make_corrector(domain.name, settings.correction_kind)
+        self._expert = None
+        self.failures: list[TaskFailure] = []
+
+    def set_weights(self, weights: dict[str, np.ndarray], policy_version: int) -> None:
+        load_numpy_state(self.model, weights)
+        self.model.eval()
+        self.policy_version = policy_version
+
+    def run_unit(self, unit: WorkUnit) -> Any:
+        """Collect ``unit`` and write its shard; returns the shard record."""
+        if unit.policy_version != self.policy_version:
+            raise RuntimeError(f"worker {self.worker_id} holds weights v{self.policy_version}, unit wants v{unit.policy_version}")
+        attempts = self.collect(unit.task_ids, unit.split, unit.seed, unit.round_index)
+        return self.writer.write_unit(unit, attempts, self.worker_id)
+
+    # -- collection ---------------------------------------------------------------------------
+
+    def _fail(self, task_id: int, stage: str, err: BaseException, failed: np.ndarray, i: int) -> None:
+        """Drop one task from the unit, keeping the others going; the failure is reported."""
+        failure = TaskFailure(int(task_id), stage, err)
+        log.error("%s", failure)
+        self.failures.append(failure)
+        failed[i] = True
+
+    def collect(self, task_ids: Sequence[int], split: str, seed: int, round_index: int = 0) -> list[Attempt]:
+        """All attempts of ``task_ids``, in (task order, attempt index) order."""
+        d, s = self.domain, self.settings
+        vocab = d.vocabulary
+        n = len(task_ids)
+        self.failures = []
+        failed = np.zeros(n, dtype=bool)
+        envs: list[Any] = [None] * n
+        for i, t in enumerate(task_ids):
+            try:
+                envs[i] = d.make_env(int(t))
+            except Exception as err:  # noqa: BLE001
+                self._fail(t, "env construction", err, failed, i)
+        expert = None
+        if s.label_states and not failed.all():
+            if self._expert is None:
+                self._expert = make_expert(next(e for e in envs if e is not None))
+            expert = self._expert
+        max_attempts = s.num_corrections + 1 if self.model.uses_corrections else 1
+        stride, steps = d.trajectory_stride, d.steps_per_attempt
+        # histories[i]: (trajectory (S, *O), correction ids (L,)) of each finished attempt of task i
+        histories: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(n)]
+        instructions: list[str] = [""] * n
+        solved = np.zeros(n, dtype=bool)
+        attempts_out: list[list[Attempt]] = [[] for _ in range(n)]
+        action_rng = derive_rng(seed, round_index, 0xAC7)
+
+        for k in range(max_attempts):
+            active = np.flatnonzero(~solved & ~failed)
+            if active.size == 0:
+                break
+            m = active.size
+            obs_buf = np.zeros((m, steps) + d.obs_shape, dtype=d.obs_dtype)
+            act_buf = np.zeros((m, steps), dtype=np.int64)
+            label_buf = np.full((m, steps), -1, dtype=np.int64)
+            reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
+            cur = np.zeros((m,) + d.obs_shape, dtype=d.obs_dtype)
+            for j, i in enumerate(active):
+                try:
+                    cur[j] = envs[i].reset(seed=reset_seeds[j])[0]
+                    if k == 0:
+                        instructions[i] = (self._corrector.full_information(envs[i]) if s.variant == "full_information"
+                                           else envs[i].instruction)
+                except Exception as err:  # noqa: BLE001
+                    self._fail(task_ids[i], "reset", err, failed, i)
+            with torch.no_grad():
+                z = self.model.encode_conditioning(self._conditioning([instructions[i] for i in active],
+                                                                      [histories[i] for i in active], k))
+            infos: list[dict] = [{}] * m
+            for t in range(steps):
+                obs_buf[:, t] = cur
+                with torch.no_grad():
+                    logits = self.model.action_logits(torch.from_numpy(cur), z)
+                actions = sample_actions(logits, action_rng, s.greedy_actions)
+                act_buf[:, t] = actions
+                for j, i in enumerate(active):
+                    if failed[i]:
+                        continue
+                    env = envs[i]
+                    try:
+                        if s.label_states:
+                            label_buf[j, t] = expert.act(env)
+                        cur[j], _, _, _, infos[j] = env.step(int(actions[j]))
+                    except Exception as err:  # noqa: BLE001 - one broken task must not end the unit
+                        self._fail(task_ids[i], "step/expert", err, failed, i)
+            for j, i in enumerate(active):
+                if failed[i]:
+                    continue
+                info = infos[j]
+                success = bool(info.get("success", False))
+                give_correction = (not success) and k < max_attempts - 1
+                if give_correction:
+                    try:
+                        corr = self._corrector.correct(envs[i], derive_rng(seed, task_ids[i], k, 0xC0))
+                    except Exception as err:  # noqa: BLE001
+                        self._fail(task_ids[i], "correction", err, failed, i)
+                        continue
+                    corr_text, corr_kind = corr.text, corr.kind
+                else:
+                    corr_text, corr_kind = "", ""
+                corr_ids = vocab.encode(corr_text) if corr_text else np.zeros(vocab.max_tokens, dtype=np.int64)
+                attempts_out[i].append(Attempt(
+                    task_id=int(task_ids[i]), split=split, attempt_index=k,
+                    instruction=instructions[i], instruction_ids=vocab.encode(instructions[i]),
+                    observations=obs_buf[j], actions=act_buf[j], expert_actions=label_buf[j],
+                    completion=float(info.get("completion", 0.0)), success=success,
+                    correction=corr_text, correction_kind=corr_kind, correction_ids=corr_ids,
+                    seed=reset_seeds[j], policy_version=self.policy_version,
+                ))
+                histories[i].append((obs_buf[j, ::stride].copy(), corr_ids))
+                solved[i] = success
+        return [a for per_task in attempts_out for a in per_task]
+
+    def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]], k: int) -> Conditioning:
+        d, vocab = self.domain, self.domain.vocabulary
+        m = len(instructions)
+        s = d.trajectory_samples
+        traj = np.zeros((m, k, s) + d.obs_shape, dtype=d.obs_dtype)
+        corr = np.zeros((m, k, vocab.max_tokens), dtype=np.int64)
+        for j, hist in enumerate(histories):
+            for slot, (tr, c) in enumerate(hist[:k]):
+                traj[j, slot, : tr.shape[0]] = tr
+                corr[j, slot] = c
+        return Conditioning(
+            instruction_ids=torch.from_numpy(vocab.encode_batch(instructions)),
+            trajectories=torch.from_numpy(traj),
+            correction_ids=torch.from_numpy(corr),
+            mask=torch.ones((m, k), dtype=torch.bool),
+        )
+
+
+def completion_by_attempt(attempts: Sequence[Attempt], max_attempts: int) -> np.ndarray:
+    """Mean completion after 0..max_attempts-1 corrections over the tasks in ``attempts``.
+
+    A task solved at attempt ``j`` is not rolled out again; its completion is carried forward to every
+    later index (the paper's protocol counts a finished task as finished from then on).
+    """
+    by_task: dict[int, dict[int, Attempt]] = {}
+    for a in attempts:
+        by_task.setdefault(a.task_id, {})[a.attempt_index] = a
+    table = np.zeros((len(by_task), max_attempts))
+    for row, per in enumerate(by_task.values()):
+        last = None
+        for k in range(max_attempts):
+            last = per.get(k, last)
+            table[row, k] = last.completion if last is not None else 0.0
+    return table.mean(axis=0) if len(by_task) else np.zeros(max_attempts)
