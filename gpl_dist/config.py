@@ -12,6 +12,7 @@ import ast
 import dataclasses
 import inspect
 import os
+import re
 import textwrap
 import typing
 from dataclasses import dataclass, field
@@ -131,8 +132,14 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
+_SCIENTIFIC = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)[eE][+-]?\d+$")
+
+
 def _coerce(value: Any, tp: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
+    if tp in (int, float) and isinstance(value, str) and _SCIENTIFIC.match(value.strip()):
+        # YAML 1.1 reads "1e6" as a string; people write buffer sizes that way.
+        value = float(value)
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping for section, got {type(value).__name__}")

@@ -37,6 +37,8 @@ class DomainSpec:
         vocabulary: words of instructions and corrections.
         make_env: builds the (unwrapped) env of a task: ``make_env(task_id, **kwargs)``.
         split_names: names of the versioned splits.
+        obs_categories: for categorical grid observations, the number of codes each channel can
+            hold (the model one-hot encodes them); None for continuous observations.
     """
 
     name: str
@@ -50,6 +52,7 @@ class DomainSpec:
     vocabulary: Vocabulary
     make_env: Callable[..., "gymnasium.Env"]
     split_names: tuple[str, ...]
+    obs_categories: tuple[int, ...] | None = None
 
     @property
     def trajectory_samples(self) -> int:

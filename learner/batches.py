@@ -39,7 +39,8 @@ class TensorView:
 
     @classmethod
     def from_view(cls, view) -> "TensorView":
-        t = lambda a: torch.from_numpy(np.ascontiguousarray(a))  # noqa: E731
+        # np.array(copy) only when the loader handed out read-only memory
+        t = lambda a: torch.from_numpy(a if a.flags.writeable and a.flags.c_contiguous else np.array(a))  # noqa: E731
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
                    t(view.trajectories))
@@ -53,12 +54,15 @@ class TensorView:
         rows = self.attempt_rows[idx]
         uniq, inverse = torch.unique(rows, return_inverse=True)
         ctx = self.context_rows[uniq]
-        mask = ctx >= 0
-        safe = ctx.clamp(min=0)
+        valid = ctx >= 0
+        # each earlier attempt is encoded once, however many later attempts in the batch use it
+        earlier, slot_of = torch.unique(ctx[valid], return_inverse=True)
+        slots = torch.full_like(ctx, -1)
+        slots[valid] = slot_of
         cond = Conditioning(
             instruction_ids=self.instruction_ids[uniq],
-            trajectories=self.trajectories[safe],
-            correction_ids=self.correction_ids[safe],
-            mask=mask,
+            trajectories=self.trajectories[earlier],
+            correction_ids=self.correction_ids[earlier],
+            slots=slots,
         )
         return self.observations[idx], self.expert_actions[idx], cond, inverse

@@ -117,7 +117,7 @@ class _Progress:
 def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, address: str | None = None,
                  resume: bool = False, progress: bool = True, collector=None) -> TrainingResult:
     """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray."""
-    from storage import BufferReader, commit_round, committed_rounds
+    from storage import BufferReader, commit_round, committed_rounds, recover_pending
 
     run_dir = Path(run_dir)
     ckpt_dir = run_dir / "checkpoints"
@@ -156,6 +156,9 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     bars = _Progress(progress)
     max_attempts = cfg.collection.num_corrections + 1 if learner.model.uses_corrections else 1
     reader = BufferReader(root)
+    if resume:
+        # a driver killed in the middle of a commit left a journal: finish that commit first
+        recover_pending(root)
     try:
         for r in range(start_round, cfg.training.num_rounds):
             version = r

@@ -217,20 +217,20 @@ class RolloutWorker:
         return [a for per_task in attempts_out for a in per_task]
 
     def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]], k: int) -> Conditioning:
-        d, vocab = self.domain, self.domain.vocabulary
+        vocab = self.domain.vocabulary
         m = len(instructions)
-        s = d.trajectory_samples
-        traj = np.zeros((m, k, s) + d.obs_shape, dtype=d.obs_dtype)
-        corr = np.zeros((m, k, vocab.max_tokens), dtype=np.int64)
-        for j, hist in enumerate(histories):
-            for slot, (tr, c) in enumerate(hist[:k]):
-                traj[j, slot, : tr.shape[0]] = tr
-                corr[j, slot] = c
+        pairs = [pair for hist in histories for pair in hist[:k]]
+        s = self.domain.trajectory_samples
+        traj = np.zeros((len(pairs), s) + self.domain.obs_shape, dtype=self.domain.obs_dtype)
+        corr = np.zeros((len(pairs), vocab.max_tokens), dtype=np.int64)
+        for u, (tr, c) in enumerate(pairs):
+            traj[u, : tr.shape[0]] = tr
+            corr[u] = c
         return Conditioning(
             instruction_ids=torch.from_numpy(vocab.encode_batch(instructions)),
             trajectories=torch.from_numpy(traj),
             correction_ids=torch.from_numpy(corr),
-            mask=torch.ones((m, k), dtype=torch.bool),
+            slots=torch.arange(m * k, dtype=torch.long).reshape(m, k),
         )
 
 

@@ -66,23 +66,27 @@ SIZES = {
 
 @dataclass(frozen=True)
 class Conditioning:
-    """What an attempt is conditioned on, one row per distinct attempt (``A`` rows).
+    """What a batch of attempts is conditioned on.
+
+    ``A`` attempts share ``U`` distinct earlier attempts: each earlier (trajectory, correction) pair
+    is encoded once, however many later attempts in the batch are conditioned on it.
 
     Attributes:
-        instruction_ids: int64 ``(A, L)``.
-        trajectories: ``(A, K, S, *O)`` subsampled earlier attempts (obs dtype), K slots.
-        correction_ids: int64 ``(A, K, L)`` the correction given after each earlier attempt.
-        mask: bool ``(A, K)`` which slots hold an earlier attempt.
+        instruction_ids: int64 ``(A, L)`` each attempt's instruction.
+        trajectories: ``(U, S, *O)`` subsampled earlier attempts (obs dtype).
+        correction_ids: int64 ``(U, L)`` the correction given after each earlier attempt.
+        slots: int64 ``(A, K)`` rows of ``trajectories`` each attempt is conditioned on, oldest
+            first, padded with -1.
     """
 
     instruction_ids: torch.Tensor
     trajectories: torch.Tensor
     correction_ids: torch.Tensor
-    mask: torch.Tensor
+    slots: torch.Tensor
 
     def to(self, device: torch.device | str) -> "Conditioning":
         return Conditioning(*(t.to(device, non_blocking=True) for t in
-                              (self.instruction_ids, self.trajectories, self.correction_ids, self.mask)))
+                              (self.instruction_ids, self.trajectories, self.correction_ids, self.slots)))
 
 
 def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> tuple[nn.Sequential, int]:
@@ -99,20 +103,22 @@ def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> t
 class GridStateEncoder(nn.Module):
     """uint8 grid ``(B, H, W, C)`` -> vector.
 
-    Each channel's integer value is looked up in its own embedding table (equivalent to a one-hot
-    encoding followed by a 1x1 convolution) so categorical codes are not read as magnitudes; then
-    2x2 convolutions and an MLP, as in the appendix.
+    Every channel holds a categorical code, so each is one-hot encoded (``categories[c]`` values
+    for channel ``c``) rather than read as a magnitude; then 2x2 convolutions and an MLP, as in the
+    appendix. Building the one-hot input needs no gradient, which keeps the backward pass cheap.
     """
 
-    def __init__(self, obs_shape: tuple[int, ...], channels: tuple[int, ...], mlp_sizes: tuple[int, ...]):
+    def __init__(self, obs_shape: tuple[int, ...], categories: tuple[int, ...], channels: tuple[int, ...],
+                 mlp_sizes: tuple[int, ...]):
         super().__init__()
         h, w, c = obs_shape
-        self.num_channels = c
-        embed_dim = channels[0]
-        self.value_embedding = nn.Embedding(256 * c, embed_dim)
-        self.register_buffer("channel_offsets", torch.arange(c, dtype=torch.long) * 256, persistent=False)
+        if len(categories) != c:
+            raise ValueError(f"need one category count per channel ({c}), got {categories}")
+        self.num_inputs = int(sum(categories))
+        offsets = torch.tensor([0, *np.cumsum(categories)[:-1]], dtype=torch.long)
+        self.register_buffer("offsets", offsets.view(1, c, 1, 1), persistent=False)
         convs: list[nn.Module] = []
-        d = embed_dim
+        d = self.num_inputs
         for ch in channels:
             convs += [nn.Conv2d(d, ch, kernel_size=2), nn.ReLU()]
             d = ch
@@ -121,10 +127,11 @@ class GridStateEncoder(nn.Module):
         self.mlp, self.out_dim = mlp(mlp_sizes, d * h * w)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        idx = obs.long() + self.channel_offsets  # (B, H, W, C)
-        x = self.value_embedding(idx).sum(dim=-2)  # (B, H, W, E)
-        x = self.convs(x.permute(0, 3, 1, 2).contiguous())
-        return self.mlp(x.flatten(1))
+        b, h, w, _ = obs.shape
+        idx = obs.permute(0, 3, 1, 2).long() + self.offsets  # (B, C, H, W)
+        x = torch.zeros(b, self.num_inputs, h, w, dtype=torch.float32, device=obs.device)
+        x.scatter_(1, idx, 1.0)
+        return self.mlp(self.convs(x).flatten(1))
 
 
 class VectorStateEncoder(nn.Module):
@@ -137,6 +144,12 @@ class VectorStateEncoder(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.norm(obs.float())
+
+
+def _categories(domain: DomainSpec) -> tuple[int, ...]:
+    if domain.obs_categories is None:
+        raise ValueError(f"domain {domain.name} has grid observations but no obs_categories")
+    return domain.obs_categories
 
 
 class TextEncoder(nn.Module):
@@ -160,7 +173,8 @@ class TrajectoryEncoder(nn.Module):
     def __init__(self, domain: DomainSpec, sizes: Sizes):
         super().__init__()
         if len(domain.obs_shape) == 3:
-            self.state = GridStateEncoder(domain.obs_shape, sizes.traj_state_channels, sizes.traj_state_mlp)
+            self.state = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
+                                          sizes.traj_state_mlp)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         steps = domain.trajectory_samples
@@ -189,7 +203,7 @@ class GPLPolicy(nn.Module):
         self.trajectory = TrajectoryEncoder(domain, sizes)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim)
         if len(domain.obs_shape) == 3:
-            self.state = GridStateEncoder(domain.obs_shape, sizes.state_channels, sizes.state_mlp)
+            self.state = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels, sizes.state_mlp)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         self.conditioning_dim = self.instruction.out_dim + pair_dim
@@ -205,28 +219,21 @@ class GPLPolicy(nn.Module):
         z_im = self.instruction(cond.instruction_ids)
         if self.variant == "no_instruction":
             z_im = torch.zeros_like(z_im)
-        a, k = cond.mask.shape
+        a = z_im.shape[0]
         pair_dim = self.conditioning_dim - z_im.shape[1]
-        if not self.uses_corrections or k == 0 or not bool(cond.mask.any()):
+        mask = cond.slots >= 0
+        if not self.uses_corrections or cond.trajectories.shape[0] == 0 or not bool(mask.any()):
             return torch.cat([z_im, z_im.new_zeros(a, pair_dim)], dim=1)
-        mask = cond.mask
         if self.variant == "latest_correction":
-            # keep only the newest filled slot of each row
             newest = mask.long().cumsum(1) == mask.long().sum(1, keepdim=True)
             mask = mask & newest
-        slots = mask.nonzero(as_tuple=True)
-        # only filled slots are encoded: the empty ones would be thrown away by the mean anyway
-        traj = cond.trajectories[slots]
-        z_traj = self.trajectory(traj)
+        z_traj = self.trajectory(cond.trajectories)
         if self.variant == "no_trajectory":
             z_traj = torch.zeros_like(z_traj)
-        z_corr = self.correction(cond.correction_ids[slots])
-        pairs = self.pair(torch.cat([z_traj, z_corr], dim=1))
-        summed = pairs.new_zeros(a, k, pairs.shape[1])
-        summed[slots] = pairs
+        pairs = self.pair(torch.cat([z_traj, self.correction(cond.correction_ids)], dim=1))  # (U, P)
+        gathered = pairs[cond.slots.clamp(min=0)] * mask.unsqueeze(-1).to(pairs.dtype)  # (A, K, P)
         counts = mask.sum(1, keepdim=True).clamp(min=1).to(pairs.dtype)
-        z_cm = summed.sum(1) / counts
-        return torch.cat([z_im, z_cm], dim=1)
+        return torch.cat([z_im, gathered.sum(1) / counts], dim=1)
 
     def action_logits(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
         """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``."""

@@ -1,0 +1,156 @@
+"""Correction oracles of the multi-room domain (paper §6.1.1 and Table 4).
+
+All corrections are computed after an attempt from the env's final state and its per-episode
+tracking (``env.unwrapped.min_subgoals_left``: the fewest subgoals left at any step). Let
+``k = 5 - min_subgoals_left`` be the index of the first subgoal of the task's list (see
+``MultiRoomEnv``) that the attempt never completed.
+
+Kinds (``make_multiroom_corrector(kind)``):
+
+- ``"default"`` / ``"subgoal"`` (the paper's): the text of subgoal ``k``, e.g.
+  "enter the blue room", "pick up the green triangle" (the authors' ``all_subgoals[5 - left]``).
+- ``"directional"``: the compass direction of subgoal ``k``'s target from the agent's final cell,
+  ``"<thing> is <dir>"`` with ``dir`` in north, northeast, east, southeast, south, southwest,
+  west, northwest (45-degree sectors centred on each; north = -y) or ``here`` (same cell):
+
+  ====  ============================  ===================================
+  k     thing                         target cell
+  ====  ============================  ===================================
+  0     "the object room"             the object room's door
+  1     "the object"                  the true object (the agent if held)
+  2     "the exit"                    the object room's door
+  3     "the goal room"               the goal room's door
+  4     "the goal"                    the true goal
+  ====  ============================  ===================================
+
+- ``"binary"``: one yes/no fact about the final state relevant to subgoal ``k``:
+
+  - k = 0: "you are in the right room" if inside the object room, else "you are in the wrong
+    room" (the hallway counts as a wrong room);
+  - k = 1: "you have the wrong object" if holding a decoy; else right/wrong room with respect to
+    the region (room or hallway) where the true object lies;
+  - k = 2: "you have the right object" if holding it, "you have the wrong object" if holding a
+    decoy, else "you do not have the object";
+  - k = 3, 4: holding the true object -> right/wrong room w.r.t. the goal room; holding a decoy
+    -> "you have the wrong object"; empty hands -> "you do not have the object".
+- ``"all"``: one of subgoal / directional / binary, uniformly with ``rng``.
+- ``"reward"`` (the GPR variant): the attempt's outcome in words, ``"reward <n> of five"`` with
+  ``n`` in zero..five the number of subgoals completed (= 5 x completion).
+
+A solved attempt gets ``"you are done"`` (kind ``subgoal``, or the oracle's own kind for
+``directional`` / ``binary``; ``reward`` says "reward five of five"). The rollout worker stops
+rolling a solved task out, so this is rarely asked for.
+
+``full_information(env)``: the 5 subgoals in one sentence joined by "then" (26 words).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from gpl_dist.envs.multiroom_core import DOOR_CELL, REGION_FLAT, XY, compass
+from gpl_dist.records import Correction
+
+KINDS = ("default", "subgoal", "directional", "binary", "all", "reward")
+_NUMBERS = ("zero", "one", "two", "three", "four", "five")
+DONE_TEXT = "you are done"
+
+
+def _state(env: Any):
+    u = getattr(env, "unwrapped", env)
+    k = 5 - u.min_subgoals_left
+    return u, k
+
+
+def subgoal_correction(env: Any) -> Correction:
+    u, k = _state(env)
+    if u.success or k >= 5:
+        return Correction(DONE_TEXT, "subgoal")
+    return Correction(u.subgoal_texts[k], "subgoal")
+
+
+def directional_correction(env: Any) -> Correction:
+    u, k = _state(env)
+    if u.success or k >= 5:
+        return Correction(DONE_TEXT, "directional")
+    task = u.task
+    if k == 0:
+        thing, cell = "the object room", DOOR_CELL[task.obj_room]
+    elif k == 1:
+        thing, cell = "the object", u._obj_cell[0]  # never held yet (else k >= 2): on the grid
+    elif k == 2:
+        thing, cell = "the exit", DOOR_CELL[task.obj_room]
+    elif k == 3:
+        thing, cell = "the goal room", DOOR_CELL[task.goal_room]
+    else:
+        thing, cell = "the goal", task.goals[0].cell
+    (tx, ty), (ax, ay) = XY[cell], XY[u._pos]
+    return Correction(f"{thing} is {compass(tx - ax, ty - ay)}", "directional")
+
+
+def binary_correction(env: Any) -> Correction:
+    u, k = _state(env)
+    if u.success or k >= 5:
+        return Correction(DONE_TEXT, "binary")
+    task = u.task
+    region = REGION_FLAT[u._pos]
+
+    def room_fact(ok: bool) -> Correction:
+        return Correction("you are in the right room" if ok else "you are in the wrong room", "binary")
+
+    carrying = u._carrying
+    if k == 0:
+        return room_fact(region == 1 + task.obj_room)
+    if k == 1:
+        if carrying > 0:
+            return Correction("you have the wrong object", "binary")
+        return room_fact(region == REGION_FLAT[u._obj_cell[0]])
+    if carrying > 0:
+        return Correction("you have the wrong object", "binary")
+    if carrying < 0:
+        return Correction("you do not have the object", "binary")
+    if k == 2:
+        return Correction("you have the right object", "binary")
+    return room_fact(region == 1 + task.goal_room)
+
+
+def reward_correction(env: Any) -> Correction:
+    u, k = _state(env)
+    return Correction(f"reward {_NUMBERS[min(k, 5)]} of five", "reward")
+
+
+def full_information(env: Any) -> str:
+    u = getattr(env, "unwrapped", env)
+    return " then ".join(u.subgoal_texts)
+
+
+class MultiRoomCorrector:
+    """``correct(env, rng) -> Correction`` and ``full_information(env) -> str`` for one kind."""
+
+    _RULES = {
+        "subgoal": subgoal_correction,
+        "directional": directional_correction,
+        "binary": binary_correction,
+        "reward": reward_correction,
+    }
+
+    def __init__(self, kind: str = "default"):
+        if kind not in KINDS:
+            raise ValueError(f"unknown multiroom correction kind '{kind}' (known: {', '.join(KINDS)})")
+        self.kind = "subgoal" if kind == "default" else kind
+
+    def correct(self, env: Any, rng: np.random.Generator) -> Correction:
+        kind = self.kind
+        if kind == "all":
+            kind = ("subgoal", "directional", "binary")[int(rng.integers(3))]
+        return self._RULES[kind](env)
+
+    def full_information(self, env: Any) -> str:
+        return full_information(env)
+
+
+def make_multiroom_corrector(kind: str = "default") -> MultiRoomCorrector:
+    """The oracle of ``kind`` in default/subgoal, directional, binary, all, reward."""
+    return MultiRoomCorrector(kind)

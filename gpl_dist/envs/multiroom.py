@@ -1,0 +1,455 @@
+"""Multi-room object manipulation (paper §6.1.1): a fast standalone numpy grid world.
+
+See :class:`MultiRoomEnv` for the full specification. Static data (layout, tasks, encodings) lives
+in :mod:`gpl_dist.envs.multiroom_core`; rendering in :mod:`gpl_dist.envs.multiroom_render`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from gpl_dist.envs.multiroom_core import (
+    ACTION_DROP,
+    ACTION_PICKUP,
+    COLOURS,
+    DOOR_CELL,
+    DOOR_INDEX_FLAT,
+    K_FLOOR,
+    KIND_FLAT,
+    NUM_TASKS,
+    PAD,
+    REGION_FLAT,
+    SHAPES,
+    START_CELL,
+    STEP,
+    VIS_LUT,
+    VIS_REGION,
+    VIEW,
+    XY,
+    D_OPEN,
+    MultiRoomTask,
+    check_task_id,
+    get_task,
+    task_static,
+)
+from gpl_dist.language import Vocabulary
+from gpl_dist.roles import DomainSpec
+
+__all__ = ["MultiRoomEnv", "MultiRoomTask", "VOCABULARY", "DOMAIN", "make_env", "make_splits",
+           "HELDOUT_OBJECTS", "MAX_STEPS"]
+
+MAX_STEPS = 100
+NUM_SUBGOALS = 5
+
+#: Every word of instructions, corrections (all kinds) and the full-information text. The order
+#: is fixed: token ids are ``2 + index`` and must never change (append new words at the end).
+WORDS = (
+    "move", "to", "square", "ball", "triangle",
+    "blue", "green", "grey", "purple", "red", "yellow",
+    "enter", "the", "room", "pick", "up", "exit", "go", "goal", "then",
+    "you", "are", "done", "in", "wrong", "right", "have", "do", "not", "object", "is", "here",
+    "north", "south", "east", "west", "northeast", "northwest", "southeast", "southwest",
+    "reward", "of", "zero", "one", "two", "three", "four", "five",
+)
+VOCABULARY = Vocabulary(words=WORDS, max_tokens=32)
+
+#: (colour, shape) combinations held out by the ``heldout_*`` splits (paper Table 5).
+HELDOUT_OBJECTS = (("green", "triangle"), ("red", "ball"))
+
+
+class MultiRoomEnv(gym.Env):
+    """Multi-room object manipulation: carry one object to one goal square in another room.
+
+    ## Description
+    A 19x19 grid: six 6x5 rooms (interiors) to the west and east of a central north-south
+    hallway (x = 8..10). Each room has one door in the hallway wall, with a fixed colour that
+    names the room: blue (7, 3) north-west, green (11, 3) north-east, grey (7, 9) west,
+    purple (11, 9) east, red (7, 15) south-west, yellow (11, 15) south-east. Doors start closed;
+    moving into a closed door opens it and the agent does not move on that step; doors never close.
+    The agent starts at (8, 12) in the hallway and has no heading. A task places the true object
+    (colour x shape, shape in ball / triangle / square) in the object room, the true goal square
+    in the goal room (another room), and 3 decoy objects (other colour-shape combinations,
+    distinct) and 3 decoy goals (other colours, distinct) in random rooms; the 8 items sit at
+    distinct cells. Objects and goals can be walked over. ``pickup`` takes the object under the
+    agent if its hands are empty; ``drop`` puts the carried object down only on a floor cell
+    (room or hallway, not a door) that holds neither an object nor a goal (so a cell never holds
+    two items and an object never hides a goal); otherwise both are no-ops. A carried object
+    moves with the agent and is not on the grid. The task is solved when the agent stands on the
+    true goal while carrying the true object.
+
+    ## Instruction grammar
+    ``"Move <object colour> <object shape> to <goal colour> square"`` (paper §6.1.1), e.g.
+    "Move green triangle to green square". It names no room: 108 instructions cover 3240 tasks.
+
+    ## Corrections
+    (see :mod:`gpl_dist.corrections.multiroom`) The task's 5 subgoals, from the start state:
+    "enter the <object room> room", "pick up the <colour> <shape>", "exit the <object room>
+    room", "enter the <goal room> room", "go to the <goal colour> goal". Kinds: ``subgoal``
+    (paper default: the first subgoal the attempt never completed), ``directional`` (compass
+    direction of that subgoal's target, e.g. "the goal room is southwest"), ``binary`` (yes/no
+    facts, e.g. "you are in the wrong room", "you have the wrong object"), ``reward`` (GPR:
+    "reward three of five") and the full-information text (all 5 subgoals joined by "then").
+
+    ## Observation
+    ``Box(0, 255, (7, 7, 6), uint8)``, ``obs[row, col, ch]``; the agent is at ``[3, 3]``,
+    ``row = 3 + dy``, ``col = 3 + dx`` (north up, east right). Per cell:
+
+    - ch 0 type: 0 unseen, 1 empty floor, 2 wall, 3 door, 4 ball, 5 triangle, 6 square, 7 goal;
+    - ch 1 colour: 0 none, 1 blue, 2 green, 3 grey, 4 purple, 5 red, 6 yellow;
+    - ch 2 door state: 0 no door, 1 closed, 2 open;
+    - ch 3, 4, 5: carried object's type (0 none, 4..6) and colour (0..6), and the carrying flag
+      (0/1) -- the same value in every cell of the window.
+
+    The agent's own cell shows what it stands on (floor, object, goal or door). Cells outside the
+    grid read as wall. Visibility is per region (walls and closed doors hide what lies behind
+    them): walls, doors and out-of-grid cells are always visible (the layout is the same in every
+    task); the hallway is always visible; the floor of a room (and its items) is visible only
+    when the agent is inside that room, or in the hallway / on a door cell while that room's door
+    is open. Hidden cells read 0 in channels 0-2. (Room-to-room sight lines never fit in the 7x7
+    window, so "through an open door" is exactly "from the hallway".)
+
+    ## Action space
+    ``Discrete(6)``, the paper's order:
+
+    | 0 | up (north, -y)   |
+    | 1 | left (west, -x)  |
+    | 2 | right (east, +x) |
+    | 3 | down (south, +y) |
+    | 4 | pickup           |
+    | 5 | drop             |
+
+    ## Completion metric
+    ``L(state)``, the number of the 5 subgoals still to do, seen from the current state
+    (regions: a room is its interior; door cells belong to the hallway):
+
+    - carrying the true object: 0 on the true goal; 1 inside the goal room; 2 in the hallway;
+      3 inside any other room (the object room or a wrong room: that room must be exited);
+    - otherwise: 4 if the agent is in the region (room or hallway) where the true object lies,
+      else 5. (A held decoy does not count; it shows in the corrections instead.)
+
+    ``min_subgoals_left`` is the minimum of ``L`` over the episode (reset included) and
+    subgoal ``k`` (0-based) is done iff ``k < 5 - min_subgoals_left``; hence "enter" is done once
+    the agent stood in the object room while the object was there, "pick up" once it held the
+    object, "exit" once it was in the hallway holding it, "enter <goal room>" once it was in the
+    goal room holding it, "go to" on success. ``info["completion"] = (5 - min_subgoals_left) / 5``
+    (best so far, as the authors' code). ``info["subgoals"]`` = list of (text, done) for the 5
+    subgoals, ``info["success"]`` = sticky success flag.
+
+    ## Reward
+    ``reward_mode="dense"`` (paper appendix, the PPO experts' reward), after the step:
+    ``100 * (previous min_subgoals_left - new min_subgoals_left)`` (i.e. +100 once per newly
+    completed subgoal) ``- 0.01 * |agent - w|_2`` where ``w`` is the cell of the next waypoint
+    from the current state: carrying the true object -> the true goal if inside the goal room,
+    else the door of the room the agent is in (to exit it), else (hallway) the goal room's door;
+    not carrying it -> the object if the agent is in the object's region, else the door of the
+    room the agent is in, else (hallway) the door of the room holding the object. After success
+    the reward is just the distance term (0 while the agent stays on the goal). Losing progress
+    (``L`` rising) is not penalised (the authors' code subtracted 100 and used the squared
+    distance; the paper's text, followed here, does neither).
+    ``reward_mode="sparse"``: 1.0 on the step the task is first solved, else 0.0.
+
+    ## Termination
+    Never terminates (``terminated`` is always False; success is sticky in ``info``). The env
+    itself truncates at 100 steps (``truncated=True`` from the 100th step on), as does the
+    TimeLimit wrapper of ``gymnasium.make("gpl/MultiRoom-v0", task_id=...)``.
+
+    ## Tasks and splits
+    ``task_id`` in 0..3239 enumerates (object colour, shape, object room, goal colour, goal room
+    != object room): ``task_id = (((oc*3 + shape)*6 + obj_room)*6 + goal_colour)*5 + k`` with
+    colours (blue, green, grey, purple, red, yellow), shapes (ball, triangle, square), rooms in
+    door-colour order, and the goal room the k-th of the five other rooms. Decoys and all item
+    cells are drawn from ``np.random.default_rng([12345, task_id])``; the env is deterministic
+    given the task (``reset(seed=...)`` only seeds ``self.np_random``). Splits are in
+    ``gpl_dist/splits/multiroom.json`` (see :func:`make_splits`).
+
+    ## Rendering
+    ``render_mode="rgb_array"``: the full grid, 32 px tiles (608x608x3 uint8).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    domain_name = "multiroom"
+
+    def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
+        self.task_id = check_task_id(task_id)
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if reward_mode not in ("dense", "sparse"):
+            raise ValueError(f"reward_mode must be 'dense' or 'sparse', got {reward_mode!r}")
+        self.render_mode = render_mode
+        self.reward_mode = reward_mode
+        self.observation_space = spaces.Box(0, 255, (VIEW, VIEW, 6), np.uint8)
+        self.action_space = spaces.Discrete(6)
+        task, enc, goal_cells, obj_codes, texts = task_static(self.task_id)
+        self.task: MultiRoomTask = task
+        self.instruction: str = task.instruction
+        self.subgoal_texts: tuple[str, ...] = texts
+        self._enc0 = enc
+        self._goal_cells = goal_cells
+        self._obj_codes = obj_codes
+        self._goal_cell = task.goals[0].cell
+        self._goal_region = 1 + task.goal_room
+        self._goal_door = DOOR_CELL[task.goal_room]
+        self._dense = reward_mode == "dense"
+        self._reset_state()
+
+    # ------------------------------------------------------------------ state
+    def _reset_state(self) -> None:
+        self._enc = self._enc0.copy()
+        self._pos = START_CELL
+        self._door_mask = 0
+        self._obj_cell = [o.cell for o in self.task.objects]  # -1 while carried
+        self._obj_at = {c: i for i, c in enumerate(self._obj_cell)}
+        self._carrying = -1  # -1 none, 0 true object, 1..3 decoys
+        self._carry_vec = np.zeros(3, dtype=np.uint8)
+        self._steps = 0
+        self._success = False
+        self._left = self._subgoals_left_now()
+        self._min_left = self._left
+
+    def _subgoals_left_now(self) -> int:
+        region = REGION_FLAT[self._pos]
+        if self._carrying == 0:
+            if region == self._goal_region:
+                return 0 if self._pos == self._goal_cell else 1
+            return 2 if region == 0 else 3
+        return 4 if region == REGION_FLAT[self._obj_cell[0]] else 5
+
+    def _waypoint(self) -> int:
+        """Cell of the next waypoint (see the Reward section)."""
+        pos = self._pos
+        region = REGION_FLAT[pos]
+        if self._carrying == 0:
+            if region == self._goal_region:
+                return self._goal_cell
+            return self._goal_door if region == 0 else DOOR_CELL[region - 1]
+        target = self._obj_cell[0]
+        target_region = REGION_FLAT[target]
+        if region == target_region:
+            return target
+        return DOOR_CELL[region - 1] if region != 0 else DOOR_CELL[target_region - 1]
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        super().reset(seed=seed)
+        self._reset_state()
+        return self._obs(), self._info()
+
+    def step(self, action):
+        a = int(action)
+        pos = self._pos
+        if a < 4:
+            if a < 0:
+                raise ValueError(f"invalid action {action!r} (expected 0..5)")
+            nxt = STEP[a][pos]
+            if nxt >= 0:
+                k = KIND_FLAT[nxt]
+                if k == K_FLOOR:
+                    self._pos = nxt
+                else:  # a door
+                    bit = 1 << DOOR_INDEX_FLAT[nxt]
+                    if self._door_mask & bit:
+                        self._pos = nxt
+                    else:
+                        self._door_mask |= bit
+                        x, y = XY[nxt]
+                        self._enc[y + PAD, x + PAD, 2] = D_OPEN
+        elif a == ACTION_PICKUP:
+            if self._carrying < 0:
+                i = self._obj_at.pop(pos, -1)
+                if i >= 0:
+                    self._carrying = i
+                    self._obj_cell[i] = -1
+                    t, c = self._obj_codes[i]
+                    self._carry_vec = np.array((t, c, 1), dtype=np.uint8)
+                    x, y = XY[pos]
+                    self._enc[y + PAD, x + PAD] = (1, 0, 0)
+        elif a == ACTION_DROP:
+            i = self._carrying
+            if i >= 0 and self.can_drop_at(pos):
+                self._carrying = -1
+                self._obj_cell[i] = pos
+                self._obj_at[pos] = i
+                self._carry_vec = np.zeros(3, dtype=np.uint8)
+                x, y = XY[pos]
+                t, c = self._obj_codes[i]
+                self._enc[y + PAD, x + PAD] = (t, c, 0)
+        else:
+            raise ValueError(f"invalid action {action!r} (expected 0..5)")
+        self._steps += 1
+
+        left = self._subgoals_left_now()
+        self._left = left
+        gained = self._min_left - left
+        newly_solved = False
+        if gained > 0:
+            self._min_left = left
+            if left == 0 and not self._success:
+                self._success = newly_solved = True
+        if self._dense:
+            wx, wy = XY[self._waypoint()]
+            x, y = XY[self._pos]
+            reward = (100.0 * gained if gained > 0 else 0.0) - 0.01 * ((wx - x) ** 2 + (wy - y) ** 2) ** 0.5
+        else:
+            reward = 1.0 if newly_solved else 0.0
+        return self._obs(), reward, False, self._steps >= MAX_STEPS, self._info()
+
+    def _obs(self) -> np.ndarray:
+        x, y = XY[self._pos]
+        region = REGION_FLAT[self._pos]
+        key = 63 + region if region > 0 else self._door_mask
+        vis = VIS_LUT[key][VIS_REGION[y:y + VIEW, x:x + VIEW]]
+        obs = np.empty((VIEW, VIEW, 6), dtype=np.uint8)
+        np.multiply(self._enc[y:y + VIEW, x:x + VIEW], vis[:, :, None], out=obs[:, :, :3])
+        obs[:, :, 3:] = self._carry_vec
+        return obs
+
+    def _info(self) -> dict[str, Any]:
+        n_done = NUM_SUBGOALS - self._min_left
+        t = self.subgoal_texts
+        return {
+            "completion": n_done / NUM_SUBGOALS,
+            "subgoals": [(t[0], n_done > 0), (t[1], n_done > 1), (t[2], n_done > 2), (t[3], n_done > 3), (t[4], n_done > 4)],
+            "success": self._success,
+        }
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from gpl_dist.envs.multiroom_render import render_grid
+
+        cells: dict[tuple[int, int], tuple] = {}
+        for i, c in enumerate(DOOR_CELL):
+            cells[XY[c]] = ("door", i + 1, 0, bool(self._door_mask >> i & 1))
+        for g in self.task.goals:
+            cells[g.xy] = ("goal", COLOURS.index(g.colour) + 1, 0, False)
+        for i, c in enumerate(self._obj_cell):
+            if c >= 0:
+                t, col = self._obj_codes[i]
+                cells[XY[c]] = ("floor", col, t, False)
+        carried = self._obj_codes[self._carrying] if self._carrying >= 0 else (0, 0)
+        return render_grid(cells, XY[self._pos], carried)
+
+    # ------------------------------------------------------------------ privileged read-only state
+    def can_drop_at(self, cell: int) -> bool:
+        """Whether ``drop`` would succeed at flat cell ``cell`` (given a carried object)."""
+        return KIND_FLAT[cell] == K_FLOOR and cell not in self._obj_at and cell not in self._goal_cells
+
+    @property
+    def agent_pos(self) -> tuple[int, int]:
+        """Agent's (x, y)."""
+        return XY[self._pos]
+
+    @property
+    def agent_region(self) -> int:
+        """0 hallway (door cells included), 1 + i inside room i."""
+        return REGION_FLAT[self._pos]
+
+    @property
+    def door_open(self) -> tuple[bool, ...]:
+        """Open flags of the 6 doors, in colour order (blue, green, grey, purple, red, yellow)."""
+        return tuple(bool(self._door_mask >> i & 1) for i in range(6))
+
+    @property
+    def carrying(self) -> int:
+        """-1 empty hands, 0 the true object, 1..3 a decoy (index into ``task.objects``)."""
+        return self._carrying
+
+    @property
+    def object_positions(self) -> tuple[tuple[int, int] | None, ...]:
+        """(x, y) of each of ``task.objects`` on the grid, None while carried."""
+        return tuple(XY[c] if c >= 0 else None for c in self._obj_cell)
+
+    @property
+    def steps(self) -> int:
+        return self._steps
+
+    @property
+    def success(self) -> bool:
+        return self._success
+
+    @property
+    def subgoals_left(self) -> int:
+        """``L`` of the current state (see Completion metric)."""
+        return self._left
+
+    @property
+    def min_subgoals_left(self) -> int:
+        """Minimum of ``L`` over the episode so far; the first undone subgoal is ``5 - this``."""
+        return self._min_left
+
+    @property
+    def completion(self) -> float:
+        return (NUM_SUBGOALS - self._min_left) / NUM_SUBGOALS
+
+
+def make_env(task_id: int, **kwargs: Any) -> MultiRoomEnv:
+    """The unwrapped env of ``task_id`` (``kwargs``: ``render_mode``, ``reward_mode``)."""
+    return MultiRoomEnv(task_id, **kwargs)
+
+
+def make_splits(seed: int = 0) -> dict[str, list[int]]:
+    """The versioned splits (written to ``gpl_dist/splits/multiroom.json`` by ``__main__``).
+
+    - ``train`` (1700), ``test`` (250) and ``valid`` (the other 1290): a seeded permutation of all
+      3240 tasks. Every task has its own 5-subgoal list, so no test task's list is in train
+      (the paper's condition).
+    - ``heldout_train`` (1700): tasks none of whose 4 objects (true or decoy) is one of
+      ``HELDOUT_OBJECTS``, so those colour-shape combinations are never seen in training;
+      ``heldout_test``: every task whose true object is a held-out combination (paper Table 5).
+    """
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(NUM_TASKS)
+    held = set(HELDOUT_OBJECTS)
+    clean, heldout_test = [], []
+    for t in range(NUM_TASKS):
+        objs = get_task(t).objects
+        if (objs[0].colour, objs[0].shape) in held:
+            heldout_test.append(t)
+        elif not any((o.colour, o.shape) in held for o in objs):
+            clean.append(t)
+    clean = np.asarray(clean)
+    heldout_train = clean[rng.permutation(len(clean))[:1700]]
+    return {
+        "train": sorted(int(t) for t in perm[:1700]),
+        "test": sorted(int(t) for t in perm[1700:1950]),
+        "valid": sorted(int(t) for t in perm[1950:]),
+        "heldout_train": sorted(int(t) for t in heldout_train),
+        "heldout_test": sorted(heldout_test),
+    }
+
+
+SPLIT_NOTE = (
+    "make_splits(0) in gpl_dist/envs/multiroom.py: train/test/valid = 1700/250/1290 of a seeded "
+    "permutation; heldout_train = 1700 tasks without any object in HELDOUT_OBJECTS "
+    f"({', '.join(' '.join(c) for c in HELDOUT_OBJECTS)}); heldout_test = all tasks whose true object is held out"
+)
+
+DOMAIN = DomainSpec(
+    name="multiroom",
+    env_id="gpl/MultiRoom-v0",
+    num_tasks=NUM_TASKS,
+    obs_shape=(VIEW, VIEW, 6),
+    obs_dtype="uint8",
+    num_actions=6,
+    steps_per_attempt=MAX_STEPS,
+    trajectory_stride=25,
+    vocabulary=VOCABULARY,
+    make_env=make_env,
+    split_names=("train", "valid", "test", "heldout_train", "heldout_test"),
+    # codes per channel: type 0..7, colour 0..6, door 0..2, carried type 0..6, carried colour 0..6, flag 0..1
+    obs_categories=(8, 7, 3, 7, 7, 2),
+)
+
+# Shapes and colour names, re-exported for other modules.
+OBJECT_SHAPES = SHAPES
+OBJECT_COLOURS = COLOURS
+
+
+if __name__ == "__main__":  # regenerate the split file: python -m gpl_dist.envs.multiroom
+    from gpl_dist.splits import write_splits
+
+    print(write_splits("multiroom", make_splits(0), seed=0, note=SPLIT_NOTE))

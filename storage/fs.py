@@ -1,0 +1,160 @@
+"""One run root on a local disk or any fsspec location (``memory://run``, ``s3://bucket/run``).
+
+Everything in ``storage`` goes through :class:`Location`, which holds an fsspec filesystem and the
+root path inside it, and speaks in paths relative to the root. Bytes are written under a temporary
+name starting with ``_tmp-`` (ignored by pyarrow datasets) and then renamed into place. On a local
+disk that rename is ``os.replace`` (atomic); on object stores a "rename" is copy + delete, which is
+why the round manifest, written last, is the commit point.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import posixpath
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable
+
+import fsspec
+from fsspec.implementations.local import LocalFileSystem
+
+from storage.layout import TMP_PREFIX
+
+
+def sha256_hex(data: bytes | memoryview) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+@dataclass(frozen=True)
+class Location:
+    """A run root: ``fs`` (fsspec filesystem) and ``root`` (path inside it, no trailing slash)."""
+
+    fs: fsspec.AbstractFileSystem
+    root: str
+    url: str
+
+    @property
+    def is_local(self) -> bool:
+        return isinstance(self.fs, LocalFileSystem)
+
+    def path(self, rel: str) -> str:
+        return posixpath.join(self.root, rel) if rel else self.root
+
+    def rel(self, path: str) -> str:
+        path = path.rstrip("/")
+        root = self.root.rstrip("/")
+        if path == root:
+            return ""
+        if not path.startswith(root + "/"):
+            raise ValueError(f"{path!r} is not under {root!r}")
+        return path[len(root) + 1 :]
+
+    def full_url(self, rel: str = "") -> str:
+        """URL or local path that zarr/pyarrow/duckdb can open."""
+        p = self.path(rel)
+        return p if self.is_local else self.fs.unstrip_protocol(p)
+
+    # -- reading ---------------------------------------------------------------------------------
+    def exists(self, rel: str) -> bool:
+        return self.fs.exists(self.path(rel))
+
+    def read_bytes(self, rel: str) -> bytes:
+        return self.fs.cat_file(self.path(rel))
+
+    def size(self, rel: str) -> int:
+        return int(self.fs.size(self.path(rel)))
+
+    def listdir(self, rel: str) -> list[str]:
+        """Names (not paths) of the entries of directory ``rel``; [] when it does not exist."""
+        p = self.path(rel)
+        if not self.fs.isdir(p):
+            return []
+        return sorted(posixpath.basename(e.rstrip("/")) for e in self.fs.ls(p, detail=False))
+
+    def isdir(self, rel: str) -> bool:
+        return self.fs.isdir(self.path(rel))
+
+    def find(self, rel: str) -> list[str]:
+        """Relative paths of every file under ``rel`` (recursively); [] when absent."""
+        p = self.path(rel)
+        if not self.fs.exists(p):
+            return []
+        if not self.fs.isdir(p):
+            return [rel]
+        return sorted(self.rel(f) for f in self.fs.find(p))
+
+    def mtime(self, rel: str) -> float | None:
+        try:
+            return self.fs.modified(self.path(rel)).timestamp()
+        except Exception:  # noqa: BLE001 - not every filesystem knows modification times
+            return None
+
+    # -- writing ---------------------------------------------------------------------------------
+    def makedirs(self, rel: str) -> None:
+        self.fs.makedirs(self.path(rel), exist_ok=True)
+
+    def write_bytes(self, rel: str, data: bytes | memoryview) -> None:
+        """Write ``data`` to ``rel`` (not atomic; use inside a temporary directory)."""
+        p = self.path(rel)
+        self.fs.makedirs(posixpath.dirname(p), exist_ok=True)
+        if self.is_local:
+            with open(p, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+        else:
+            self.fs.pipe_file(p, bytes(data))
+
+    def write_bytes_atomic(self, rel: str, data: bytes | memoryview) -> None:
+        """Write ``data`` under a ``_tmp-`` name beside ``rel``, then rename it to ``rel``."""
+        tmp = posixpath.join(posixpath.dirname(rel), f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}-{posixpath.basename(rel)}")
+        self.write_bytes(tmp, data)
+        self.move(tmp, rel)
+
+    def move(self, src: str, dst: str) -> None:
+        """Rename file or directory ``src`` to ``dst`` (replacing a file ``dst``)."""
+        s, d = self.path(src), self.path(dst)
+        self.fs.makedirs(posixpath.dirname(d), exist_ok=True)
+        if self.is_local:
+            os.replace(s, d)
+        else:
+            self.fs.mv(s, d, recursive=self.fs.isdir(s))
+
+    def remove(self, rel: str) -> None:
+        p = self.path(rel)
+        if self.fs.exists(p):
+            self.fs.rm(p, recursive=self.fs.isdir(p))
+
+    def remove_empty_dirs(self, rel: str) -> None:
+        """Remove empty directories under ``rel`` (bottom-up), keeping ``rel`` itself."""
+        if not self.is_local:
+            return  # object stores have no empty directories worth removing
+        top = Path(self.path(rel))
+        if not top.is_dir():
+            return
+        for d in sorted((p for p in top.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+
+    def du(self, rels: Iterable[str] = ("",)) -> int:
+        total = 0
+        for rel in rels:
+            p = self.path(rel)
+            if self.fs.exists(p):
+                total += int(self.fs.du(p, total=True))
+        return total
+
+
+def resolve(root: "str | os.PathLike[str] | Location") -> Location:
+    """The :class:`Location` of a local directory or fsspec URL."""
+    if isinstance(root, Location):
+        return root
+    url = os.fspath(root)
+    fs, path = fsspec.core.url_to_fs(url)
+    if isinstance(fs, LocalFileSystem):
+        path = os.path.abspath(path)
+    return Location(fs=fs, root=path.rstrip("/") or "/", url=url)

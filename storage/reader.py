@@ -1,0 +1,336 @@
+"""``BufferReader``: the committed rounds of a run, verified, as in-memory training arrays.
+
+Only files listed in committed manifests are read; every file's bytes are checked against the
+manifest's sha256 before they are decoded (zarr chunks are decoded from the verified bytes, so no
+file is read twice). ``load_training_view`` returns plain numpy arrays: the learner iterates them
+for as many epochs as it likes without touching the disk again.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from typing import Iterable, Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import zarr
+from zarr.core.buffer import cpu
+from zarr.storage import MemoryStore
+
+from storage.errors import BufferIntegrityError
+from storage.fs import Location, resolve, sha256_hex
+from storage.layout import OBS_ARRAY
+from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest
+
+
+@dataclass(frozen=True)
+class TrainingView:
+    """Contiguous in-memory arrays of the newest labelled states and the attempts they need.
+
+    Per tuple (``N`` rows, newest ``capacity_tuples`` at most, whole attempts only):
+        observations ``(N, *O)``, expert_actions int64 ``(N,)``, actions int64 ``(N,)`` (executed),
+        timesteps int64 ``(N,)``, attempt_rows int64 ``(N,)`` (row into the per-attempt arrays).
+    Per attempt (``A`` rows: every attempt with tuples in the view, plus every earlier attempt a kept
+    attempt is conditioned on, even when its own tuples fell out; ordered by ``attempt_keys``):
+        attempt_keys, round_index, unit_index, task_id, attempt_index, lengths: int64 ``(A,)``;
+        instruction_ids, correction_ids: int64 ``(A, L)``; completion float32 ``(A,)``; success bool;
+        in_window bool ``(A,)`` (its tuples are in the view);
+        context_rows int64 ``(A, Kmax)``: rows of attempts 0..k-1 of the same (round, task), in
+        order, padded with -1; ``Kmax = max(1, max attempt_index)``;
+        trajectories ``(A, S, *O)``: the attempt's observations at t = 0, stride, 2*stride, ...;
+        ``S = max(1, ceil(max length / stride))``; samples past an attempt's end are zeros, and
+        trajectory_lengths int64 ``(A,)`` = ``ceil(length / stride)`` counts the real ones.
+    """
+
+    observations: np.ndarray
+    expert_actions: np.ndarray
+    actions: np.ndarray
+    timesteps: np.ndarray
+    attempt_rows: np.ndarray
+    attempt_keys: np.ndarray
+    round_index: np.ndarray
+    unit_index: np.ndarray
+    task_id: np.ndarray
+    attempt_index: np.ndarray
+    lengths: np.ndarray
+    instruction_ids: np.ndarray
+    correction_ids: np.ndarray
+    completion: np.ndarray
+    success: np.ndarray
+    in_window: np.ndarray
+    context_rows: np.ndarray
+    trajectories: np.ndarray
+    trajectory_lengths: np.ndarray
+    trajectory_stride: int
+    rounds: tuple[int, ...]
+
+    @property
+    def num_tuples(self) -> int:
+        return int(self.expert_actions.shape[0])
+
+    @property
+    def num_attempts(self) -> int:
+        return int(self.attempt_keys.shape[0])
+
+    @property
+    def trajectory_mask(self) -> np.ndarray:
+        """bool ``(A, S)``: which trajectory samples are real states (not padding)."""
+        return np.arange(self.trajectories.shape[1])[None, :] < self.trajectory_lengths[:, None]
+
+    @property
+    def nbytes(self) -> int:
+        return sum(v.nbytes for v in vars(self).values() if isinstance(v, np.ndarray))
+
+
+# ------------------------------------------------------------------------------------------------
+def read_verified(loc: Location, f: ShardFile) -> bytes:
+    """Bytes of a committed file, after checking its size and sha256 against the manifest."""
+    try:
+        data = loc.read_bytes(f.path)
+    except FileNotFoundError:
+        raise BufferIntegrityError(f"committed file {f.path} is missing in {loc.url}", f.path) from None
+    if len(data) != f.nbytes:
+        raise BufferIntegrityError(
+            f"committed file {f.path} in {loc.url} has {len(data)} bytes, manifest says {f.nbytes}", f.path
+        )
+    digest = sha256_hex(data)
+    if digest != f.sha256:
+        raise BufferIntegrityError(
+            f"checksum mismatch in committed file {f.path} in {loc.url}: sha256 {digest}, manifest says {f.sha256}",
+            f.path,
+        )
+    return data
+
+
+def read_shard_table(loc: Location, shard: ShardRecord, role: str, columns: Sequence[str] | None = None) -> pa.Table:
+    (f,) = shard.files_of(role)
+    return pq.read_table(pa.BufferReader(read_verified(loc, f)), columns=list(columns) if columns else None)
+
+
+def open_shard_obs(loc: Location, shard: ShardRecord) -> zarr.Array:
+    """The shard's observation array, decoded from verified bytes held in memory."""
+    store: dict = {}
+    for f in shard.files_of("obs"):
+        key = f.path.split(".zarr/", 1)[1]
+        store[key] = cpu.Buffer.from_bytes(read_verified(loc, f))
+    return zarr.open_array(store=MemoryStore(store, read_only=True), path=OBS_ARRAY, mode="r")
+
+
+def _fixed_lists(col: pa.ChunkedArray, name: str) -> np.ndarray:
+    arr = col.combine_chunks()
+    n = len(arr)
+    if n == 0:
+        return np.zeros((0, 0), np.int64)
+    offsets = arr.offsets.to_numpy()
+    widths = np.diff(offsets)
+    if not (widths == widths[0]).all():
+        raise BufferIntegrityError(f"{name} lists have different lengths ({widths.min()}..{widths.max()})")
+    values = arr.values.to_numpy(zero_copy_only=False)[offsets[0] : offsets[-1]]
+    return values.reshape(n, int(widths[0])).astype(np.int64, copy=False)
+
+
+_ATTEMPT_COLUMNS = [
+    "attempt_key", "round", "unit", "task_id", "attempt_index", "instruction_ids", "correction_ids",
+    "context_keys", "completion", "success", "length", "obs_start",
+]
+
+
+class BufferReader:
+    """Reads the committed rounds of the run at ``root`` (local directory or fsspec URL)."""
+
+    def __init__(self, root: "str | os.PathLike[str] | Location") -> None:
+        self.location = resolve(root)
+
+    def committed_rounds(self) -> list[int]:
+        return committed_rounds(self.location)
+
+    def manifest(self, round_index: int) -> RoundManifest:
+        return load_manifest(self.location, round_index)
+
+    def read_table(self, role: str, rounds: Iterable[int] | None = None, columns: Sequence[str] | None = None) -> pa.Table:
+        """The verified ``attempts`` or ``tuples`` table of committed ``rounds`` (default: all)."""
+        from storage.schema import ATTEMPTS_SCHEMA, TUPLES_SCHEMA
+
+        schema = ATTEMPTS_SCHEMA if role == "attempts" else TUPLES_SCHEMA
+        tables = []
+        for r in self.committed_rounds() if rounds is None else rounds:
+            for shard in sorted(self.manifest(r).shards, key=lambda s: s.unit_index):
+                tables.append(read_shard_table(self.location, shard, role, columns))
+        if not tables:
+            return (schema if columns is None else pa.schema([schema.field(c) for c in columns])).empty_table()
+        return pa.concat_tables(tables)
+
+    # --------------------------------------------------------------------------------------------
+    def load_training_view(self, capacity_tuples: int = 1_000_000, trajectory_stride: int = 25) -> TrainingView:
+        """Newest ``capacity_tuples`` labelled states (whole attempts, FIFO over committed rounds)."""
+        if trajectory_stride < 1:
+            raise ValueError("trajectory_stride must be at least 1")
+        loc = self.location
+        rounds = self.committed_rounds()
+        obs_shape: tuple[int, ...] = ()
+        obs_dtype = np.dtype(np.float32)
+        manifests: list[RoundManifest] = []
+        tables: list[pa.Table] = []
+        remaining = int(capacity_tuples)
+        first_kept: list[int] = []  # per loaded round: index of its first attempt in the window
+        for r in reversed(rounds):
+            if remaining <= 0:
+                break
+            m = self.manifest(r)
+            if m.obs_shape is not None and not obs_shape:
+                obs_shape, obs_dtype = tuple(m.obs_shape), np.dtype(m.obs_dtype)
+            shards = sorted(m.shards, key=lambda s: s.unit_index)
+            parts = [read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS) for s in shards]
+            t = pa.concat_tables(parts) if parts else None
+            if t is None or t.num_rows == 0:
+                continue
+            lengths = t.column("length").to_numpy().astype(np.int64)
+            from_end = np.cumsum(lengths[::-1])
+            n_fit = int(np.searchsorted(from_end, remaining, side="right"))
+            remaining -= int(from_end[n_fit - 1]) if n_fit else 0
+            manifests.append(m)
+            tables.append(t)
+            first_kept.append(t.num_rows - n_fit)
+            if n_fit < t.num_rows:
+                break  # FIFO: an older attempt did not fit, so nothing older is kept
+        manifests.reverse(), tables.reverse(), first_kept.reverse()
+        for m in manifests:
+            if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (obs_shape, obs_dtype):
+                raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} differ from {obs_shape} {obs_dtype}")
+        if not tables:
+            return _empty_view(obs_shape, obs_dtype, trajectory_stride, ())
+
+        att = pa.concat_tables(tables)
+        keys = att.column("attempt_key").to_numpy()
+        if not (np.diff(keys) > 0).all():
+            raise BufferIntegrityError("attempt keys of the committed rounds are not strictly increasing")
+        in_window = np.zeros(len(keys), bool)
+        off = 0
+        for t, fk in zip(tables, first_kept):
+            in_window[off + fk : off + t.num_rows] = True
+            off += t.num_rows
+        ctx_col = att.column("context_keys").combine_chunks()
+        ctx_off = ctx_col.offsets.to_numpy()
+        ctx_val = ctx_col.values.to_numpy()[ctx_off[0] : ctx_off[-1]]
+        ctx_off = ctx_off - ctx_off[0]
+        ctx_len = np.diff(ctx_off)
+        # attempts referenced by the context of a kept attempt
+        win_ctx = ctx_val[np.repeat(in_window, ctx_len)]
+        ref_rows = np.searchsorted(keys, win_ctx)
+        if len(win_ctx) and not ((ref_rows < len(keys)).all() and np.array_equal(keys[ref_rows], win_ctx)):
+            raise BufferIntegrityError("an attempt's context_keys name an attempt missing from its round")
+        needed = in_window.copy()
+        needed[ref_rows] = True
+        sel = np.flatnonzero(needed)  # rows of `att` that become view rows
+        new_row = np.full(len(keys), -1, np.int64)
+        new_row[sel] = np.arange(len(sel))
+
+        a_keys = keys[sel]
+        lengths = att.column("length").to_numpy().astype(np.int64)[sel]
+        attempt_index = att.column("attempt_index").to_numpy().astype(np.int64)[sel]
+        k_max = max(1, int(attempt_index.max()) if len(sel) else 1)
+        context_rows = np.full((len(sel), k_max), -1, np.int64)
+        for j, i in enumerate(sel):
+            c = ctx_val[ctx_off[i] : ctx_off[i + 1]]
+            if len(c):
+                context_rows[j, : len(c)] = new_row[np.searchsorted(keys, c)]
+        a_in_window = in_window[sel]
+
+        # per tuple
+        n = int(lengths[a_in_window].sum())
+        observations = np.empty((n, *obs_shape), obs_dtype)
+        expert_actions = np.empty(n, np.int64)
+        actions = np.empty(n, np.int64)
+        attempt_rows = np.repeat(np.flatnonzero(a_in_window).astype(np.int64), lengths[a_in_window])
+        tuple_start = np.full(len(sel), -1, np.int64)
+        tuple_start[a_in_window] = np.concatenate([[0], np.cumsum(lengths[a_in_window])[:-1]]).astype(np.int64)
+        timesteps = np.arange(n, dtype=np.int64) - np.repeat(tuple_start[a_in_window], lengths[a_in_window])
+
+        stride = int(trajectory_stride)
+        t_len = -(-lengths // stride)
+        s_max = max(1, int(t_len.max()) if len(t_len) else 1)
+        trajectories = np.zeros((len(sel), s_max, *obs_shape), obs_dtype)
+
+        obs_start_all = att.column("obs_start").to_numpy().astype(np.int64)
+        units_all = att.column("unit").to_numpy()
+        rounds_all = att.column("round").to_numpy()
+        pos = 0  # next tuple row
+        off = 0
+        for m, t in zip(manifests, tables):
+            shards = {s.unit_index: s for s in m.shards}
+            rows = np.arange(off, off + t.num_rows)
+            for u in np.unique(units_all[rows]):
+                shard_rows = rows[units_all[rows] == u]
+                need = shard_rows[needed[shard_rows]]
+                if len(need) == 0:
+                    continue
+                shard = shards[int(u)]
+                z = open_shard_obs(loc, shard)
+                win = shard_rows[in_window[shard_rows]]
+                lo = hi = 0
+                if len(win):
+                    lo = int(obs_start_all[win[0]])
+                    hi = int(obs_start_all[win[-1]] + lengths[new_row[win[-1]]])
+                    m_rows = hi - lo
+                    observations[pos : pos + m_rows] = z[lo:hi]
+                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"]).slice(lo, m_rows)
+                    if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(keys[win], lengths[new_row[win]])):
+                        raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
+                    expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
+                    actions[pos : pos + m_rows] = tup.column("action").to_numpy()
+                    for i in win:
+                        j = new_row[i]
+                        s = tuple_start[j]
+                        trajectories[j, : t_len[j]] = observations[s : s + lengths[j] : stride]
+                    pos += m_rows
+                ctx_only = need[~in_window[need]]
+                if len(ctx_only):
+                    js = new_row[ctx_only]
+                    gather = np.concatenate([obs_start_all[i] + np.arange(0, lengths[j], stride) for i, j in zip(ctx_only, js)])
+                    got = z.oindex[gather] if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
+                    g = 0
+                    for j in js:
+                        trajectories[j, : t_len[j]] = got[g : g + t_len[j]]
+                        g += t_len[j]
+            off += t.num_rows
+        assert pos == n
+
+        inst = _fixed_lists(att.column("instruction_ids").take(pa.array(sel)), "instruction_ids")
+        corr = _fixed_lists(att.column("correction_ids").take(pa.array(sel)), "correction_ids")
+        return TrainingView(
+            observations=observations,
+            expert_actions=expert_actions,
+            actions=actions,
+            timesteps=timesteps,
+            attempt_rows=attempt_rows,
+            attempt_keys=a_keys.astype(np.int64),
+            round_index=rounds_all[sel].astype(np.int64),
+            unit_index=units_all[sel].astype(np.int64),
+            task_id=att.column("task_id").to_numpy()[sel].astype(np.int64),
+            attempt_index=attempt_index,
+            lengths=lengths,
+            instruction_ids=inst,
+            correction_ids=corr,
+            completion=att.column("completion").to_numpy()[sel].astype(np.float32),
+            success=att.column("success").to_numpy(zero_copy_only=False)[sel].astype(bool),
+            in_window=a_in_window,
+            context_rows=context_rows,
+            trajectories=trajectories,
+            trajectory_lengths=t_len.astype(np.int64),
+            trajectory_stride=stride,
+            rounds=tuple(m.round_index for m in manifests),
+        )
+
+
+def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, rounds: tuple[int, ...]) -> TrainingView:
+    z = lambda *s, dt=np.int64: np.zeros(s, dt)  # noqa: E731
+    return TrainingView(
+        observations=np.zeros((0, *obs_shape), dtype), expert_actions=z(0), actions=z(0), timesteps=z(0),
+        attempt_rows=z(0), attempt_keys=z(0), round_index=z(0), unit_index=z(0), task_id=z(0),
+        attempt_index=z(0), lengths=z(0), instruction_ids=z(0, 0), correction_ids=z(0, 0),
+        completion=z(0, dt=np.float32), success=z(0, dt=bool), in_window=z(0, dt=bool),
+        context_rows=z(0, 1), trajectories=np.zeros((0, 1, *obs_shape), dtype), trajectory_lengths=z(0),
+        trajectory_stride=stride, rounds=rounds,
+    )

@@ -1,0 +1,38 @@
+"""Shared fixtures: one Ray cluster per test session, on loopback, with its own temp dir."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def ray_cluster():
+    """A local Ray cluster shared by every test that needs one (started once: it takes seconds)."""
+    import ray
+
+    if ray.is_initialized():
+        yield ray
+        return
+    # Short path: Ray's Unix sockets live under the temp dir and have a length limit.
+    temp_dir = tempfile.mkdtemp(prefix="gplray-", dir="/tmp")
+    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", _temp_dir=temp_dir,
+             log_to_driver=False, object_store_memory=512 * 1024 * 1024)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(autouse=True)
+def _single_torch_thread():
+    """Tests share 2 cores with Ray; one torch thread keeps timings and results stable."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+os.environ.setdefault("RAY_DEDUP_LOGS", "0")

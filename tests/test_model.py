@@ -1,0 +1,150 @@
+import numpy as np
+import pytest
+import torch
+
+from gpl_dist.domains import get_domain
+from gpl_dist.models.gpl import Conditioning, build_model, load_numpy_state, state_dict_to_numpy
+
+VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction"]
+
+
+def random_states(domain, shape, g):
+    """Random observations that respect the domain's per-channel codes."""
+    if domain.obs_categories is None:
+        return g.normal(size=shape + domain.obs_shape).astype(domain.obs_dtype)
+    highs = np.array(domain.obs_categories)
+    return (g.random(shape + domain.obs_shape) * highs).astype(domain.obs_dtype)
+
+
+def random_conditioning(domain, a, k, seed=0):
+    g = np.random.default_rng(seed)
+    vocab = domain.vocabulary
+    traj = random_states(domain, (a * k, domain.trajectory_samples), g)
+    filled = np.arange(k)[None, :] < g.integers(0, k + 1, (a, 1))
+    slots = np.where(filled, np.arange(a * k).reshape(a, k), -1)
+    return Conditioning(
+        instruction_ids=torch.from_numpy(g.integers(2, vocab.size, (a, vocab.max_tokens))),
+        trajectories=torch.from_numpy(traj),
+        correction_ids=torch.from_numpy(g.integers(2, vocab.size, (a * k, vocab.max_tokens))),
+        slots=torch.from_numpy(slots),
+    )
+
+
+def random_obs(domain, b, seed=1):
+    return torch.from_numpy(random_states(domain, (b,), np.random.default_rng(seed)))
+
+
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_forward_shapes(domain_name, variant):
+    d = get_domain(domain_name)
+    model = build_model(d, variant, seed=0).eval()
+    cond = random_conditioning(d, a=5, k=4)
+    rows = torch.tensor([0, 0, 1, 4, 3, 2, 2])
+    logits = model(random_obs(d, 7), cond, rows)
+    assert logits.shape == (7, d.num_actions) and torch.isfinite(logits).all()
+    z = model.encode_conditioning(cond)
+    assert z.shape == (5, model.conditioning_dim)
+
+
+def _z(model, cond):
+    with torch.no_grad():
+        return model.encode_conditioning(cond)
+
+
+def _replace(cond, **kw):
+    fields = dict(instruction_ids=cond.instruction_ids, trajectories=cond.trajectories,
+                  correction_ids=cond.correction_ids, slots=cond.slots)
+    fields.update(kw)
+    return Conditioning(**fields)
+
+
+def test_variants_ignore_what_they_should():
+    d = get_domain("multiroom")
+    cond = random_conditioning(d, a=6, k=3)
+    cond = _replace(cond, slots=torch.arange(18).reshape(6, 3))
+    other_corr = torch.flip(cond.correction_ids, dims=[1]).clone()
+    other_corr[:, 0] = 5
+    other_traj = torch.zeros_like(cond.trajectories)
+    other_instr = torch.full_like(cond.instruction_ids, 3)
+
+    gpl = build_model(d, "gpl", seed=0).eval()
+    assert not torch.allclose(_z(gpl, cond), _z(gpl, _replace(cond, correction_ids=other_corr)))
+    assert not torch.allclose(_z(gpl, cond), _z(gpl, _replace(cond, trajectories=other_traj)))
+    assert not torch.allclose(_z(gpl, cond), _z(gpl, _replace(cond, instruction_ids=other_instr)))
+
+    no_traj = build_model(d, "no_trajectory", seed=0).eval()
+    assert torch.allclose(_z(no_traj, cond), _z(no_traj, _replace(cond, trajectories=other_traj)))
+
+    no_instr = build_model(d, "no_instruction", seed=0).eval()
+    assert torch.allclose(_z(no_instr, cond), _z(no_instr, _replace(cond, instruction_ids=other_instr)))
+
+    instr_only = build_model(d, "instruction_only", seed=0).eval()
+    assert torch.allclose(_z(instr_only, cond), _z(instr_only, _replace(cond, correction_ids=other_corr)))
+
+    latest = build_model(d, "latest_correction", seed=0).eval()
+    older_changed = cond.correction_ids.clone()
+    older_changed[cond.slots[:, :2].flatten()] = 7
+    assert torch.allclose(_z(latest, cond), _z(latest, _replace(cond, correction_ids=older_changed)))
+    newest_changed = cond.correction_ids.clone()
+    newest_changed[cond.slots[:, 2]] = 7
+    assert not torch.allclose(_z(latest, cond), _z(latest, _replace(cond, correction_ids=newest_changed)))
+
+
+def test_empty_history_gives_zero_correction_embedding():
+    d = get_domain("multiroom")
+    model = build_model(d, "gpl", seed=0).eval()
+    cond = random_conditioning(d, a=3, k=0)
+    z = _z(model, cond)
+    assert z.shape == (3, model.conditioning_dim)
+    assert torch.count_nonzero(z[:, model.instruction.out_dim:]) == 0
+
+
+def test_unreferenced_rows_do_not_matter():
+    d = get_domain("multiroom")
+    model = build_model(d, "gpl", seed=0).eval()
+    cond = random_conditioning(d, a=4, k=3)
+    cond = _replace(cond, slots=torch.tensor([[0, -1, -1], [3, -1, -1], [6, -1, -1], [9, -1, -1]]))
+    junk = cond.correction_ids.clone()
+    junk[[1, 2, 4, 5, 7, 8, 10, 11]] = 9
+    assert torch.allclose(_z(model, cond), _z(model, _replace(cond, correction_ids=junk)))
+
+
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+def test_loss_on_fixed_batch_falls(domain_name):
+    d = get_domain(domain_name)
+    torch.manual_seed(0)
+    model = build_model(d, "gpl", seed=0)
+    cond = random_conditioning(d, a=16, k=3)
+    obs = random_obs(d, 256)
+    rows = torch.arange(256) % 16
+    labels = torch.from_numpy(np.random.default_rng(3).integers(0, d.num_actions, 256))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    model.train()
+    losses = []
+    for _ in range(150):
+        loss = torch.nn.functional.cross_entropy(model(obs, cond, rows), labels)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        losses.append(loss.item())
+    assert losses[-1] < 0.7 * losses[0], (losses[0], losses[-1])
+
+
+def test_weights_round_trip_through_numpy():
+    d = get_domain("multiroom")
+    a, b = build_model(d, seed=0), build_model(d, seed=1)
+    assert not torch.equal(a.head[-1].weight, b.head[-1].weight)
+    load_numpy_state(b, state_dict_to_numpy(a))
+    assert torch.equal(a.head[-1].weight, b.head[-1].weight)
+    assert all(isinstance(v, np.ndarray) for v in state_dict_to_numpy(a).values())
+
+
+def test_shared_earlier_attempt_is_encoded_once_and_gives_same_result():
+    d = get_domain("multiroom")
+    model = build_model(d, "gpl", seed=0).eval()
+    cond = random_conditioning(d, a=2, k=2)
+    cond = _replace(cond, slots=torch.tensor([[0, 1], [0, 1]]))
+    dup = _replace(cond, trajectories=torch.cat([cond.trajectories[:2]] * 2),
+                   correction_ids=torch.cat([cond.correction_ids[:2]] * 2), slots=torch.tensor([[0, 1], [2, 3]]))
+    assert torch.allclose(_z(model, cond), _z(model, dup), atol=1e-6)
