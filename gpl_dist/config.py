@@ -78,6 +78,8 @@ class TrainingConfig:
     """Adam learning rate."""
     batch_size: int = 512
     """Labelled states per gradient step."""
+    states_per_chunk: int = 16
+    """States of one attempt kept together when shuffling (1 shuffles states independently)."""
     device: str = "auto"
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
     num_threads: int = 0
@@ -246,6 +248,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.training.num_epochs_per_round >= 0, "training.num_epochs_per_round must be >= 0"),
         (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),
         (cfg.training.batch_size >= 1, "training.batch_size must be at least 1"),
+        (cfg.training.states_per_chunk >= 1, "training.states_per_chunk must be at least 1"),
         (cfg.training.device in ("auto", "cpu", "cuda"), f"training.device must be auto, cpu or cuda, got '{cfg.training.device}'"),
         (cfg.eval.num_corrections >= 0, "eval.num_corrections must be >= 0"),
         (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),

@@ -100,12 +100,35 @@ def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> t
     return nn.Sequential(*layers), d
 
 
-class GridStateEncoder(nn.Module):
-    """uint8 grid ``(B, H, W, C)`` -> vector.
+class Conv2x2(nn.Module):
+    """``Conv2d(kernel_size=2, stride=1)`` on channels-last input ``(B, H, W, D)`` -> ``(B, H-1, W-1, out)``.
 
-    Every channel holds a categorical code, so each is one-hot encoded (``categories[c]`` values
-    for channel ``c``) rather than read as a magnitude; then 2x2 convolutions and an MLP, as in the
-    appendix. Building the one-hot input needs no gradient, which keeps the backward pass cheap.
+    Each cell is projected once for each of the 4 kernel cells (one matrix product), and the output
+    sums the 4 shifted projections. On a CPU this is several times faster than MKL-DNN's
+    convolution for 7x7 grids and a handful of filters.
+    """
+
+    def __init__(self, in_dim: int, out_dim: int):
+        super().__init__()
+        self.out_dim = out_dim
+        self.proj = nn.Linear(in_dim, 4 * out_dim, bias=False)
+        bound = 1.0 / np.sqrt(4 * in_dim)  # Conv2d's default initialisation, fan_in = 4 * in_dim
+        nn.init.uniform_(self.proj.weight, -bound, bound)
+        self.bias = nn.Parameter(torch.empty(out_dim).uniform_(-bound, bound))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.proj(x)
+        o = self.out_dim
+        return (y[:, :-1, :-1, :o] + y[:, :-1, 1:, o:2 * o] + y[:, 1:, :-1, 2 * o:3 * o]
+                + y[:, 1:, 1:, 3 * o:] + self.bias)
+
+
+class GridStateEncoder(nn.Module):
+    """uint8 grid ``(B, H, W, C)`` -> vector: 2x2 convolutions (stride 1) then an MLP, as in the appendix.
+
+    Every channel holds a categorical code, so the input is the one-hot encoding of each channel
+    (``categories[c]`` codes for channel ``c``), not the raw integers; the convolutions are
+    ``Conv2x2`` layers in channels-last form.
     """
 
     def __init__(self, obs_shape: tuple[int, ...], categories: tuple[int, ...], channels: tuple[int, ...],
@@ -116,22 +139,19 @@ class GridStateEncoder(nn.Module):
             raise ValueError(f"need one category count per channel ({c}), got {categories}")
         self.num_inputs = int(sum(categories))
         offsets = torch.tensor([0, *np.cumsum(categories)[:-1]], dtype=torch.long)
-        self.register_buffer("offsets", offsets.view(1, c, 1, 1), persistent=False)
-        convs: list[nn.Module] = []
-        d = self.num_inputs
-        for ch in channels:
-            convs += [nn.Conv2d(d, ch, kernel_size=2), nn.ReLU()]
-            d = ch
-            h, w = h - 1, w - 1
-        self.convs = nn.Sequential(*convs)
-        self.mlp, self.out_dim = mlp(mlp_sizes, d * h * w)
+        self.register_buffer("offsets", offsets, persistent=False)
+        widths = (self.num_inputs, *channels)
+        self.convs = nn.ModuleList(Conv2x2(a, b) for a, b in zip(widths[:-1], widths[1:]))
+        h, w = h - len(channels), w - len(channels)
+        self.mlp, self.out_dim = mlp(mlp_sizes, channels[-1] * h * w)
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         b, h, w, _ = obs.shape
-        idx = obs.permute(0, 3, 1, 2).long() + self.offsets  # (B, C, H, W)
-        x = torch.zeros(b, self.num_inputs, h, w, dtype=torch.float32, device=obs.device)
-        x.scatter_(1, idx, 1.0)
-        return self.mlp(self.convs(x).flatten(1))
+        x = torch.zeros(b, h, w, self.num_inputs, device=obs.device)
+        x.scatter_(3, obs.long() + self.offsets, 1.0)
+        for conv in self.convs:
+            x = torch.relu(conv(x))
+        return self.mlp(x.flatten(1))
 
 
 class VectorStateEncoder(nn.Module):
@@ -260,4 +280,4 @@ def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
 
 
 def load_numpy_state(model: nn.Module, weights: dict[str, np.ndarray]) -> None:
-    model.load_state_dict({k: torch.from_numpy(np.asarray(v)) for k, v in weights.items()})
+    model.load_state_dict({k: torch.tensor(np.asarray(v)) for k, v in weights.items()})

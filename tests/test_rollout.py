@@ -1,0 +1,100 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from gpl_dist.domains import get_domain
+from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
+
+TASKS = (0, 5, 17, 400)
+
+
+def make_worker(domain_name="multiroom", seed=0, **kw):
+    d = get_domain(domain_name)
+    w = RolloutWorker(d, RolloutSettings(**kw), worker_id="test")
+    w.set_weights(state_dict_to_numpy(build_model(d, kw.get("variant", "gpl"), seed=seed)), 0)
+    return w
+
+
+def test_attempt_structure_and_labels():
+    w = make_worker(num_corrections=3)
+    d = w.domain
+    attempts = w.collect(TASKS, "train", seed=1)
+    by_task = {}
+    for a in attempts:
+        by_task.setdefault(a.task_id, []).append(a)
+    assert sorted(by_task) == sorted(TASKS)
+    for task_id, per in by_task.items():
+        assert [a.attempt_index for a in per] == list(range(len(per)))
+        assert 1 <= len(per) <= 4
+        for a in per:
+            assert a.observations.shape == (d.steps_per_attempt,) + d.obs_shape
+            assert a.observations.dtype == np.dtype(d.obs_dtype)
+            assert ((a.expert_actions >= 0) & (a.expert_actions < d.num_actions)).all()
+            assert ((a.actions >= 0) & (a.actions < d.num_actions)).all()
+            assert a.instruction.lower().startswith("move")
+            assert 0.0 <= a.completion <= 1.0
+        # corrections after every attempt but the last; none after a success
+        for a in per[:-1]:
+            assert a.correction and not a.success and a.correction_ids[0] != 0
+        last = per[-1]
+        assert last.correction == "" and (last.correction_ids == 0).all()
+        assert last.success or len(per) == 4
+
+
+def test_collection_is_reproducible_from_the_seed():
+    a = make_worker(num_corrections=2).collect(TASKS, "train", seed=7)
+    b = make_worker(num_corrections=2).collect(TASKS, "train", seed=7)
+    c = make_worker(num_corrections=2).collect(TASKS, "train", seed=8)
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert np.array_equal(x.actions, y.actions) and np.array_equal(x.observations, y.observations)
+        assert x.correction == y.correction and x.seed == y.seed
+    assert any(not np.array_equal(x.actions, y.actions) for x, y in zip(a, c))
+
+
+def test_expert_labels_match_a_fresh_expert_query():
+    from gpl_dist.experts import make_expert
+
+    w = make_worker(num_corrections=0)
+    (att,) = w.collect((17,), "train", seed=3)
+    env = w.domain.make_env(17)
+    env.reset(seed=att.seed)
+    expert = make_expert(env)
+    for t, a in enumerate(att.actions):
+        assert expert.act(env) == att.expert_actions[t]
+        env.step(int(a))
+
+
+def test_variants_without_corrections_make_one_attempt():
+    w = make_worker(num_corrections=5, variant="full_information")
+    attempts = w.collect(TASKS, "train", seed=0)
+    assert [a.attempt_index for a in attempts] == [0] * len(TASKS)
+    assert all("then" in a.instruction for a in attempts)  # the full-information text
+
+
+def test_failing_task_is_reported_and_others_continue():
+    d = get_domain("multiroom")
+
+    def make_env(task_id, **kw):
+        if task_id == 5:
+            raise RuntimeError("simulated broken task")
+        return d.make_env(task_id, **kw)
+
+    broken = dataclasses.replace(d, make_env=make_env)
+    w = RolloutWorker(broken, RolloutSettings(num_corrections=1), worker_id="t")
+    w.set_weights(state_dict_to_numpy(build_model(d, seed=0)), 0)
+    attempts = w.collect(TASKS, "train", seed=0)
+    assert {a.task_id for a in attempts} == set(TASKS) - {5}
+    assert [f.task_id for f in w.failures] == [5]
+    assert "task 5" in str(w.failures[0]) and "simulated broken task" in str(w.failures[0])
+
+
+def test_completion_curve_carries_solved_tasks_forward():
+    w = make_worker(num_corrections=1)
+    attempts = w.collect((0,), "train", seed=0)
+    curve = completion_by_attempt(attempts, 2)
+    assert curve.shape == (2,)
+    assert curve[0] == pytest.approx(attempts[0].completion)
+    assert curve[1] == pytest.approx(attempts[-1].completion)
