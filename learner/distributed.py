@@ -1,17 +1,27 @@
-"""Ray wiring: rollout actors, dynamic hand-out of work units, weight broadcast.
+"""Ray wiring: rollout actors, dynamic hand-out of work units, weight broadcast, fault handling.
 
 This is the only module that imports Ray. Per round the driver puts the weights into the object
 store once (``ray.put``, with a version number); actors fetch them only when the version changes.
 Units are handed out one at a time to whichever actor is idle (``ray.wait``), so a slow actor does
-not stall the round. An actor that dies is restarted by Ray (``max_restarts=-1``) and its unit is
-handed out again; because a shard's name is a function of (round, unit) the retry replaces any
-partial try, and only the driver commits the round's manifest.
+not stall the round. Actors are placed with the ``SPREAD`` strategy, so on a multi-node cluster they
+land on as many nodes as there are free CPUs rather than packing the first node.
+
+Faults. An actor that dies (its process killed, its node lost) is restarted by Ray
+(``max_restarts=-1``) and its unit is handed out again; because a shard's name is a function of
+(round, unit) the retry replaces any partial try, and only the driver commits the round's manifest.
+A dead actor is not handed another unit until a cheap probe call (``node_id``) has come back: an
+actor whose node is gone may stay pending for a long time (no free CPU anywhere), and a unit queued
+behind it would stall the round, so the remaining actors take over its work meanwhile. A probe that
+fails (the actor died for good, e.g. its constructor raised) replaces the actor with a fresh one.
+A round fails (``RoundFailed``) when a unit failed more than ``max_unit_retries`` times, or when no
+actor has been usable for ``ACTOR_WAIT_S`` seconds.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import time
 from collections import deque
 from typing import Callable, Sequence
 
@@ -26,7 +36,7 @@ log = logging.getLogger(__name__)
 
 
 class RoundFailed(RuntimeError):
-    """A work unit failed more often than ``max_unit_retries``."""
+    """A work unit failed more often than ``max_unit_retries``, or no rollout actor was usable."""
 
 
 @ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=0)
@@ -37,11 +47,12 @@ class RolloutActor:
         # One torch thread per actor: actors already use one core each.
         self.worker = make_worker(domain_name, settings, buffer_root, run_id, worker_id, num_threads=1)
 
-    def run_unit(self, unit: WorkUnit, weights_box: list) -> UnitResult:
+    def run_unit(self, unit: WorkUnit, weights_box: list) -> tuple[UnitResult, str]:
+        """The unit's result and the id of the node that collected it."""
         if self.worker.policy_version != unit.policy_version:
             # The ref sits inside a list so Ray does not resolve it for every call.
             self.worker.set_weights(ray.get(weights_box[0]), unit.policy_version)
-        return run_unit(self.worker, unit)
+        return run_unit(self.worker, unit), self.node_id()
 
     def node_id(self) -> str:
         return ray.get_runtime_context().get_node_id()
@@ -69,45 +80,97 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None)
 
 
 class RayCollector:
-    """Runs ``num_workers`` rollout actors and hands each round's units out dynamically."""
+    """Runs ``num_workers`` rollout actors and hands each round's units out dynamically.
+
+    Attributes (for logs and tests):
+        unit_tries: failed tries per ``(round, unit)``.
+        unit_nodes: node id of the actor whose try of ``(round, unit)`` was returned.
+        replaced_actors: actors replaced after a failed liveness probe.
+    """
+
+    #: Seconds a round waits with no unit in flight and no live actor before it fails.
+    ACTOR_WAIT_S = 600.0
+    #: ray.wait timeout: how often the collector checks whether it is stuck.
+    POLL_S = 5.0
 
     def __init__(self, domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
                  num_workers: int, address: str | None = None, max_unit_retries: int = 3):
         self._owns_ray = init_ray(address, num_workers)
         self.max_unit_retries = max_unit_retries
-        self.actors = [
-            RolloutActor.options(name=None).remote(domain_name, settings, buffer_root, run_id, f"actor-{i}")
-            for i in range(num_workers)
-        ]
+        self._actor_args = (domain_name, settings, buffer_root, run_id)
+        self.actors = [self._new_actor(i) for i in range(num_workers)]
         self.unit_tries: dict[tuple[int, int], int] = {}
+        self.unit_nodes: dict[tuple[int, int], str] = {}
+        self.replaced_actors = 0
+        # liveness probes of actors that died: probe ref -> actor index (carried across rounds)
+        self._probes: dict = {}
+
+    def _new_actor(self, i: int):
+        return RolloutActor.options(scheduling_strategy="SPREAD").remote(*self._actor_args, f"actor-{i}")
+
+    def _probe(self, i: int) -> None:
+        """Hand actor ``i`` no unit until a cheap call shows it is alive (restarted) again."""
+        self._probes[self.actors[i].node_id.remote()] = i
+
+    def _replace(self, i: int, err: BaseException) -> None:
+        self.replaced_actors += 1
+        if self.replaced_actors > self.max_unit_retries + len(self.actors):
+            raise RoundFailed(f"replaced {self.replaced_actors} rollout actors; last error: {err}") from err
+        log.warning("rollout actor-%d is gone for good (%s); starting a replacement", i, type(err).__name__)
+        ray.kill(self.actors[i], no_restart=True)
+        self.actors[i] = self._new_actor(i)
+        self._probe(i)
 
     def collect_round(self, units: Sequence[WorkUnit], weights: dict, policy_version: int,
                       on_result: Callable[[UnitResult], None] | None = None) -> list[UnitResult]:
         weights_ref = ray.put(weights)
         queue = deque(units)
-        idle = list(self.actors)
+        probing = set(self._probes.values())
+        idle = [i for i in reversed(range(len(self.actors))) if i not in probing]
         inflight: dict = {}
         results: dict[tuple[int, int], UnitResult] = {}
+        last_progress = time.monotonic()
         while queue or inflight:
             while queue and idle:
-                actor, unit = idle.pop(), queue.popleft()
-                inflight[actor.run_unit.remote(unit, [weights_ref])] = (actor, unit)
-            done, _ = ray.wait(list(inflight), num_returns=1)
+                i, unit = idle.pop(), queue.popleft()
+                inflight[self.actors[i].run_unit.remote(unit, [weights_ref])] = (i, unit)
+            done, _ = ray.wait(list(inflight) + list(self._probes), num_returns=1, timeout=self.POLL_S)
+            if not done:
+                if not inflight and time.monotonic() - last_progress > self.ACTOR_WAIT_S:
+                    raise RoundFailed(f"no rollout actor was usable for {self.ACTOR_WAIT_S:.0f}s with "
+                                      f"{len(queue)} units left (is there a node with a free CPU?)")
+                continue
             for ref in done:
-                actor, unit = inflight.pop(ref)
+                if ref in self._probes:
+                    i = self._probes.pop(ref)
+                    try:
+                        ray.get(ref)
+                    except RayActorError as err:
+                        self._replace(i, err)
+                        continue
+                    log.info("rollout actor-%d is back", i)
+                    idle.append(i)
+                    last_progress = time.monotonic()
+                    continue
+                i, unit = inflight.pop(ref)
                 key = (unit.round_index, unit.unit_index)
                 try:
-                    result = ray.get(ref)
+                    result, node = ray.get(ref)
                 except (RayActorError, RayTaskError) as err:
                     self.unit_tries[key] = self.unit_tries.get(key, 0) + 1
                     if self.unit_tries[key] > self.max_unit_retries:
                         raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {err}") from err
-                    log.warning("unit %s failed (%s); handing it out again", key, type(err).__name__)
+                    log.warning("unit %s failed on actor-%d (%s); handing it out again", key, i, type(err).__name__)
                     queue.appendleft(unit)
-                    idle.append(actor)  # a dead actor is restarted by Ray behind the same handle
+                    if isinstance(err, RayActorError):
+                        self._probe(i)  # dead: Ray restarts it (maybe on another node, maybe much later)
+                    else:
+                        idle.append(i)  # the unit raised; the actor itself is fine
                     continue
                 results[key] = result
-                idle.append(actor)
+                self.unit_nodes[key] = node
+                last_progress = time.monotonic()
+                idle.append(i)
                 if on_result is not None:
                     on_result(result)
         return [results[(u.round_index, u.unit_index)] for u in units]
@@ -116,5 +179,6 @@ class RayCollector:
         for actor in self.actors:
             ray.kill(actor, no_restart=True)
         self.actors = []
+        self._probes = {}
         if self._owns_ray:
             ray.shutdown()

@@ -16,6 +16,8 @@ The same class runs in one process (``--serial``, tests) and inside a Ray actor
 from __future__ import annotations
 
 import logging
+import os
+import time
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -30,6 +32,34 @@ from gpl_dist.roles import DomainSpec
 from gpl_dist.seeding import derive_rng, derive_seed
 
 log = logging.getLogger(__name__)
+
+#: Test hook, inert unless set: ``pause-mid-unit:ROUND:UNIT:DIR`` makes the first try of that unit
+#: (in any process: driver, actor) stop after collecting and before writing its shard, publish its
+#: pid as ``DIR/round-ROUND-unit-UNIT.pid`` and sleep until killed. The file is created atomically
+#: and only once, so a retry of the unit (a restarted actor, a resumed run) goes through. Used by
+#: ``tests/test_fault_tolerance.py`` to SIGKILL an actor or a driver in the middle of a round.
+TEST_HOOK_ENV = "GPL_DIST_WORKER_TEST_HOOK"
+
+
+def _test_hook(unit: WorkUnit) -> None:
+    hook = os.environ.get(TEST_HOOK_ENV, "")
+    if not hook:
+        return
+    name, r, u, signal_dir = hook.split(":", 3)
+    if name != "pause-mid-unit" or (int(r), int(u)) != (unit.round_index, unit.unit_index):
+        return
+    path = os.path.join(signal_dir, f"round-{r}-unit-{u}.pid")
+    tmp = f"{path}.tmp-{os.getpid()}"
+    with open(tmp, "w") as fh:
+        fh.write(str(os.getpid()))
+    try:
+        os.link(tmp, path)  # atomic, and fails when a first try already paused here
+    except FileExistsError:
+        return
+    finally:
+        os.unlink(tmp)
+    while True:  # wait to be killed
+        time.sleep(0.05)
 
 
 @dataclass(frozen=True)
@@ -112,6 +142,7 @@ class RolloutWorker:
         if unit.policy_version != self.policy_version:
             raise RuntimeError(f"worker {self.worker_id} holds weights v{self.policy_version}, unit wants v{unit.policy_version}")
         attempts = self.collect(unit.task_ids, unit.split, unit.seed, unit.round_index)
+        _test_hook(unit)
         return self.writer.write_unit(unit, attempts, self.worker_id)
 
     # -- collection ---------------------------------------------------------------------------
@@ -148,7 +179,8 @@ class RolloutWorker:
         instructions: list[str] = [""] * n
         solved = np.zeros(n, dtype=bool)
         attempts_out: list[list[Attempt]] = [[] for _ in range(n)]
-        action_rng = derive_rng(seed, round_index, 0xAC7)
+        # one sampling stream per unit, named by its tasks: independent of which actor runs it
+        action_rng = derive_rng(seed, round_index, *task_ids[:1], n, 0xAC7)
 
         for k in range(max_attempts):
             active = np.flatnonzero(~solved & ~failed)

@@ -1,0 +1,80 @@
+"""The gpl-dist command line, run as a user would (in-process through main(), and as a console script)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from gpl_dist.cli import main
+
+
+def test_render_png_and_gif(tmp_path, capsys):
+    assert main(["render", "--env", "multiroom", "--task", "17", "--out", str(tmp_path / "t.png")]) == 0
+    img = np.asarray(Image.open(tmp_path / "t.png"))
+    assert img.ndim == 3 and img.shape[2] == 3 and img.shape[0] >= 19 * 8
+    assert main(["render", "--env", "multiroom", "--task", "17", "--expert", "--out", str(tmp_path / "t.gif")]) == 0
+    gif = Image.open(tmp_path / "t.gif")
+    assert gif.n_frames > 10
+    assert main(["render", "--env", "relocation", "--task", "3", "--actions", "2,2,2,0,0", "--out", str(tmp_path / "r.gif")]) == 0
+    assert Image.open(tmp_path / "r.gif").n_frames == 6
+
+
+def test_render_errors_are_one_line(tmp_path, capsys):
+    assert main(["render", "--env", "multiroom", "--task", "5000", "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gpl-dist: error:") and "task_id" in err and "\n" not in err
+    assert main(["render", "--env", "multiroom", "--task", "1", "--actions", "0,9", "--out", str(tmp_path / "x.gif")]) == 2
+    assert "outside" in capsys.readouterr().err
+
+
+def test_train_rejects_bad_config_in_one_line(tmp_path, capsys):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("collection:\n  num_correction: 3\n")
+    assert main(["train", "--config", str(cfg), "--run-dir", str(tmp_path / "run"), "--serial"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "collection.num_correction" in err and "\n" not in err
+    assert not (tmp_path / "run").exists()
+    assert main(["train", "--config", str(tmp_path / "missing.yaml"), "--run-dir", str(tmp_path / "run")]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_train_eval_inspect_clean(tmp_path, capsys):
+    run = tmp_path / "run"
+    args = ["train", "--config", "configs/multiroom-smoke.yaml", "--serial", "--run-dir", str(run), "--no-progress",
+            "--set", "env.max_train_tasks=4", "--set", "collection.tasks_per_unit=2", "--set", "collection.num_corrections=2",
+            "--set", "training.num_rounds=1", "--set", "training.num_epochs_per_round=1"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "c2:" in out and "gpl-dist eval --run-dir" in out
+
+    assert main(["eval", "--run-dir", str(run), "--max-tasks", "3", "--seeds", "0,1", "--corrections", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "c0" in out and "c2" in out and "paper" in out
+    result = json.loads((run / "eval.json").read_text())
+    assert result["num_tasks"] == 3 and len(result["completion"]) == 3 and len(result["per_seed"]) == 2
+    assert result["split"] == "test" and result["greedy_actions"] is True
+    assert (run / "eval.png").stat().st_size > 1000
+
+    assert main(["inspect", str(run), "--tasks"]) == 0
+    out = capsys.readouterr().out
+    assert "round" in out.lower() and "attempt" in out.lower()
+
+    dead = run / "buffer" / "staging" / "round-000009" / "unit-00000" / "_tmp-dead-writer"
+    dead.mkdir(parents=True)
+    (dead / "tuples.parquet").write_text("partial")
+    assert main(["clean", str(run), "--dry-run"]) == 0
+    assert "would remove" in capsys.readouterr().out and dead.exists()
+    assert main(["clean", str(run)]) == 0
+    assert "removed 1" in capsys.readouterr().out.splitlines()[-1] or not dead.exists()
+    assert not dead.exists()
+    # committed data is untouched
+    assert main(["inspect", str(run)]) == 0
+
+
+def test_console_script_help():
+    out = subprocess.run([sys.executable, "-m", "gpl_dist.cli", "--help"], capture_output=True, text=True, check=True).stdout
+    for command in ("train", "eval", "render", "inspect", "clean"):
+        assert command in out

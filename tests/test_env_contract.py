@@ -1,0 +1,89 @@
+"""Contract tests run over every registered gpl-dist env (Minigrid style)."""
+
+import pickle
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import gpl_dist  # noqa: F401  (registers the envs)
+from gpl_dist.domains import DOMAIN_NAMES, get_domain
+from gpl_dist.envs import ENV_IDS
+from gpl_dist.splits import load_splits
+
+SPECS = {get_domain(name).env_id: get_domain(name) for name in DOMAIN_NAMES}
+
+
+def test_every_domain_is_registered():
+    assert set(SPECS) == set(ENV_IDS)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_check_env_on_every_split(env_id):
+    spec = SPECS[env_id]
+    for split, tasks in load_splits(spec.name).items():
+        env = gymnasium.make(env_id, task_id=int(tasks[len(tasks) // 2]))
+        check_env(env.unwrapped, skip_render_check=True)
+        env.close()
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_spec_matches_env(env_id):
+    spec = SPECS[env_id]
+    env = gymnasium.make(env_id, task_id=0)
+    assert env.observation_space.shape == spec.obs_shape
+    assert env.observation_space.dtype == np.dtype(spec.obs_dtype)
+    assert env.action_space.n == spec.num_actions
+    assert env.spec.max_episode_steps == spec.steps_per_attempt
+    obs, info = env.reset(seed=0)
+    assert {"completion", "success"} <= set(info)
+    assert isinstance(env.unwrapped.instruction, str) and env.unwrapped.instruction
+    assert env.unwrapped.domain_name == spec.name
+
+
+def _episode(env, seed, n):
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    out = [obs]
+    for _ in range(n):
+        obs, r, term, trunc, info = env.step(int(rng.integers(env.action_space.n)))
+        out.append(obs)
+        out.append(np.array([r, info["completion"]]))
+    return out
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_same_seed_same_episode(env_id):
+    a = _episode(gymnasium.make(env_id, task_id=7), 11, 60)
+    b = _episode(gymnasium.make(env_id, task_id=7), 11, 60)
+    assert all(np.array_equal(x, y) for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_pickled_env_continues_identically(env_id):
+    env = gymnasium.make(env_id, task_id=3)
+    _episode(env, 5, 20)
+    clone = pickle.loads(pickle.dumps(env))
+    for a in [0, 1, 2, 3] * 5:
+        o1, r1, *_ = env.step(a)
+        o2, r2, *_ = clone.step(a)
+        assert np.array_equal(o1, o2) and r1 == r2
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_episode_is_truncated_at_the_paper_length(env_id):
+    spec = SPECS[env_id]
+    env = gymnasium.make(env_id, task_id=1)
+    env.reset(seed=0)
+    for t in range(spec.steps_per_attempt):
+        _, _, terminated, truncated, _ = env.step(0)
+        assert not terminated
+        assert truncated == (t == spec.steps_per_attempt - 1)
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("bad", [-1, 10**6, "3", 2.5])
+def test_bad_task_id_fails_clearly(env_id, bad):
+    with pytest.raises(ValueError, match="task_id"):
+        gymnasium.make(env_id, task_id=bad)
