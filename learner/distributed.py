@@ -23,7 +23,7 @@ import logging
 import os
 import time
 from collections import deque
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import ray
 from ray.exceptions import RayActorError, RayTaskError

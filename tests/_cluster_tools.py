@@ -7,9 +7,12 @@ No test calls ``ray stop`` (it would stop every Ray cluster on the machine).
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import signal
 import socket
+import subprocess
 import sys
 import tempfile
 import time
@@ -156,3 +159,21 @@ def assert_buffer_exactly_once(root: Path, rounds: list[int], num_tasks: int = T
     for key, ks in per_task.items():
         assert sorted(ks) == list(range(len(ks))), f"{key}: attempts {sorted(ks)}"
     return {"attempts": len(keys), "tasks_per_round": len(per_task) // len(rounds)}
+
+
+def run_multinode(mode: str, tmp_path: Path, **env) -> dict:
+    """Run tests/multinode_run.py in a fresh session; returns its RESULT and cleans its processes."""
+    ray_tmp = short_temp_dir("gplm-")
+    proc = subprocess.Popen([sys.executable, str(REPO / "tests" / "multinode_run.py"), mode, str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            env=quiet_env(RAY_TMPDIR=ray_tmp, **env))
+    try:
+        out, _ = proc.communicate(timeout=300)
+    finally:
+        stragglers = kill_session(proc.pid)
+        left = pids_mentioning(ray_tmp)
+        shutil.rmtree(ray_tmp, ignore_errors=True)
+    assert proc.returncode == 0, out[-6000:]
+    assert not left and not stragglers, f"leftover Ray processes: {left} {stragglers}"
+    line = next(ln for ln in out.splitlines() if ln.startswith("RESULT "))
+    return json.loads(line[len("RESULT "):])

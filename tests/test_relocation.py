@@ -17,8 +17,6 @@ from gpl_dist.envs.relocation import (DOMAIN, FIXED_XY, MOVABLE_START, VOCABULAR
 from gpl_dist.experts import make_expert
 from gpl_dist.splits import load_splits
 
-SAMPLE_TASKS = (0, 1, 7, 123, 500, 999)
-
 
 def _rollout(env, actions, seed):
     obs, info = env.reset(seed=seed)
