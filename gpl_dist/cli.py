@@ -65,7 +65,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
     result = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
-                          max_tasks=args.max_tasks, checkpoint=args.checkpoint)
+                          max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
     import json
     domain = json.loads((Path(args.run_dir) / "eval.json").read_text())["domain"]
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
@@ -125,6 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--split", help="task split (default: eval.split)")
     p.add_argument("--max-tasks", type=int, help="evaluate only the first N tasks")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+    acting = p.add_mutually_exclusive_group()
+    acting.add_argument("--greedy", dest="greedy", action="store_true", default=None, help="act with the most likely action")
+    acting.add_argument("--sample", dest="greedy", action="store_false", help="sample actions from the policy (default)")
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("render", help="draw a task (PNG) or an attempt (GIF)")

@@ -94,8 +94,8 @@ class EvalConfig:
     """Corrections given at meta-test time (completion is reported after 0..num_corrections)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of the meta-test repetitions; the table reports their mean."""
-    greedy_actions: bool = True
-    """Act greedily at meta-test time (False samples from the policy)."""
+    greedy_actions: bool = False
+    """Act with the most likely action at meta-test time instead of sampling (greedy policies loop)."""
     max_tasks: int = 0
     """Evaluate only the first N tasks of the split (0 evaluates all of them)."""
 

@@ -2,9 +2,12 @@
 
 For every test task and seed: attempt 0 with the instruction alone, then a correction from the
 oracle after each attempt, up to ``num_corrections``; a task stops once solved and carries its
-completion forward. Actions are greedy by default (``eval.greedy_actions``): the paper does not
-say, and greedy actions make the reported numbers a property of the weights rather than of the
-sampling noise. The expert is not queried. Writes ``eval.json`` and ``eval.png`` to the run dir.
+completion forward. Actions are sampled from the policy by default, as during collection
+(``eval.greedy_actions: false``; the paper does not say): a greedy multi-room policy repeats the
+same action in the same state and gets stuck in loops (measured: completion after 5 corrections
+0.645 greedy vs 0.899 sampled, same weights), and the policy was trained on the states its sampled
+rollouts reach. Seeds make the sampling reproducible. The expert is not queried. Writes
+``eval.json`` and ``eval.png`` to the run dir.
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ class EvalResult:
 
 
 def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seeds: tuple[int, ...], split: str,
-                    max_tasks: int = 0, greedy: bool = True, chunk: int = 128) -> EvalResult:
+                    max_tasks: int = 0, greedy: bool = False, chunk: int = 128) -> EvalResult:
     domain = get_domain(cfg.env.domain)
     tasks = split_tasks(domain.name, split)
     if max_tasks:
@@ -120,7 +123,8 @@ def plot(domain: str, result: EvalResult, path: Path, title: str) -> None:
 
 
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
-                 split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None) -> EvalResult:
+                 split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
+                 greedy: bool | None = None) -> EvalResult:
     """Evaluate a run's latest (or given) checkpoint; writes eval.json and eval.png."""
     run_dir = Path(run_dir)
     ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
@@ -130,12 +134,13 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     model.load_state_dict(ckpt.model_state)
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split
+    greedy = cfg.eval.greedy_actions if greedy is None else greedy
     result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=k, seeds=seeds or cfg.eval.seeds,
                              split=split, max_tasks=cfg.eval.max_tasks if max_tasks is None else max_tasks,
-                             greedy=cfg.eval.greedy_actions)
+                             greedy=greedy)
     payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
                "round": ckpt.round_index, "num_corrections": k, "seeds": list(seeds or cfg.eval.seeds),
-               "greedy_actions": cfg.eval.greedy_actions, "num_tasks": result.num_tasks,
+               "greedy_actions": greedy, "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
                "paper_completion": {str(k2): v for k2, v in PAPER_COMPLETION.get(cfg.env.domain, {}).items()}}

@@ -54,7 +54,9 @@ def test_train_eval_inspect_clean(tmp_path, capsys):
     assert "c0" in out and "c2" in out and "paper" in out
     result = json.loads((run / "eval.json").read_text())
     assert result["num_tasks"] == 3 and len(result["completion"]) == 3 and len(result["per_seed"]) == 2
-    assert result["split"] == "test" and result["greedy_actions"] is True
+    assert result["split"] == "test" and result["greedy_actions"] is False
+    assert main(["eval", "--run-dir", str(run), "--max-tasks", "2", "--seeds", "0", "--corrections", "1", "--greedy"]) == 0
+    assert json.loads((run / "eval.json").read_text())["greedy_actions"] is True
     assert (run / "eval.png").stat().st_size > 1000
 
     assert main(["inspect", str(run), "--tasks"]) == 0

@@ -23,7 +23,7 @@ def test_corrections_raise_completion_after_meta_training(tmp_path):
     model = build_model(get_domain("multiroom"))
     model.load_state_dict(load_checkpoint(tmp_path / "run" / "checkpoints").model_state)
     result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=3, seeds=(0,), split="train",
-                             max_tasks=48, greedy=True)
+                             max_tasks=48, greedy=False)
     with_corrections, without = result.completion[3], result.completion[0]
     # The instruction names no room: without corrections the policy can only guess where to go.
     assert with_corrections > without + 0.1, result.completion
