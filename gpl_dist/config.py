@@ -34,6 +34,8 @@ class EnvConfig:
     """Versioned split whose tasks are collected on during meta-training."""
     max_train_tasks: int = 0
     """Use only the first N tasks of the training split (0 uses all of them)."""
+    task_ids: tuple[int, ...] = ()
+    """Meta-train on exactly these task ids instead of the training split (empty uses the split)."""
     correction_kind: str = "subgoal"
     """Correction oracle variant (multiroom: subgoal, directional, binary, all; relocation: mixed)."""
 

@@ -49,7 +49,7 @@ def buffer_root(cfg: RunConfig, run_dir: Path) -> str:
 
 
 def training_tasks(cfg: RunConfig) -> tuple[int, ...]:
-    tasks = split_tasks(cfg.env.domain, cfg.env.train_split)
+    tasks = cfg.env.task_ids or split_tasks(cfg.env.domain, cfg.env.train_split)
     return tasks[: cfg.env.max_train_tasks] if cfg.env.max_train_tasks else tasks
 
 

@@ -59,10 +59,12 @@ class EvalResult:
     seconds: float
 
 
-def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seeds: tuple[int, ...], split: str,
-                    max_tasks: int = 0, greedy: bool = False, chunk: int = 128) -> EvalResult:
+def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
+                    max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
+                    tasks: tuple[int, ...] | None = None) -> EvalResult:
+    """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them)."""
     domain = get_domain(cfg.env.domain)
-    tasks = split_tasks(domain.name, split)
+    tasks = tasks or split_tasks(domain.name, split)
     if max_tasks:
         tasks = tasks[:max_tasks]
     settings = RolloutSettings(num_corrections=num_corrections, greedy_actions=greedy,
