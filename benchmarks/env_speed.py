@@ -67,6 +67,7 @@ def bench_relocation(seconds: float) -> dict[str, float]:
     """gpl/Relocation-v0 steps/s beside raw ``mj_step`` of the same model (target: at least 0.3x)."""
     from relocation_speed import measure_relocation_speed  # benchmarks/ is on sys.path when run as a script
 
+    print("== relocation (random actions, one core) ==")
     r = measure_relocation_speed(steps=max(5_000, int(seconds * 40_000)))
     print(f"raw mj_step (same model, same controls)        : {r['raw_mj_step_per_s']:>12,.0f} steps/s")
     print(f"gpl RelocationEnv (unwrapped)                  : {r['env_steps_per_s']:>12,.0f} steps/s   ratio {r['ratio']:7.2f}x")

@@ -36,6 +36,7 @@ from gpl_dist.envs.multiroom_core import (
     get_task,
     task_static,
 )
+from gpl_dist.envs.modes import check_modes
 from gpl_dist.language import Vocabulary
 from gpl_dist.roles import DomainSpec
 
@@ -175,12 +176,7 @@ class MultiRoomEnv(gym.Env):
 
     def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
         self.task_id = check_task_id(task_id)
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if reward_mode not in ("dense", "sparse"):
-            raise ValueError(f"reward_mode must be 'dense' or 'sparse', got {reward_mode!r}")
-        self.render_mode = render_mode
-        self.reward_mode = reward_mode
+        self.render_mode, self.reward_mode = check_modes(render_mode, reward_mode)
         self.observation_space = spaces.Box(0, 255, (VIEW, VIEW, 6), np.uint8)
         self.action_space = spaces.Discrete(6)
         task, enc, goal_cells, obj_codes, texts = task_static(self.task_id)

@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from gpl_dist.envs.modes import check_modes
 from gpl_dist.language import Vocabulary
 from gpl_dist.roles import DomainSpec
 
@@ -300,12 +301,7 @@ class RelocationEnv(gymnasium.Env):
         self.task: RelocationTask = make_task(task_id)
         self.task_id: int = self.task.task_id
         self.instruction: str = self.task.instruction
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if reward_mode not in ("dense", "sparse"):
-            raise ValueError(f"reward_mode must be 'dense' or 'sparse', got {reward_mode!r}")
-        self.render_mode = render_mode
-        self.reward_mode = reward_mode
+        self.render_mode, self.reward_mode = check_modes(render_mode, reward_mode)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(28,), dtype=np.float32)
         self.action_space = spaces.Discrete(4)
         self.model = load_model()
