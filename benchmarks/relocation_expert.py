@@ -1,8 +1,11 @@
 """Scripted relocation expert: completion over the 1000 tasks from the start and from perturbed
 states (a random prefix of 0-150 random actions, then the expert for the rest of the 350 steps),
-and its labelling speed (expert.act calls per second, env stepping excluded).
+and its labelling speed (expert.act calls per second, env stepping excluded). Labelling speed is
+also measured on the states a DAgger worker labels early on: those visited by a uniformly random
+policy, and by a "sticky" random policy (a random action repeated 10-30 steps, which pushes blocks
+around more like a partly trained policy); the expert labels every state, the policy steps.
 
-    .venv/bin/python benchmarks/relocation_expert.py [--tasks 1000] [--stride 1]
+    .venv/bin/python benchmarks/relocation_expert.py [--tasks 1000] [--stride 1] [--policy-tasks 50]
 """
 
 from __future__ import annotations
@@ -38,10 +41,35 @@ def evaluate_expert(task_ids, perturb: bool, seed: int = 0) -> tuple[np.ndarray,
     return np.array(out), labels / max(t_act, 1e-9)
 
 
+def label_rate_on_policy(task_ids, sticky: bool, seed: int = 0) -> float:
+    """Expert labels per second (time inside ``act`` only) on the states a random policy visits."""
+    from gpl_dist.envs.relocation import RelocationEnv
+    from gpl_dist.experts.relocation import RelocationExpert
+
+    expert = RelocationExpert()
+    labels, t_act = 0, 0.0
+    for tid in task_ids:
+        env = RelocationEnv(tid)
+        env.reset(seed=seed * 100_003 + tid)
+        rng = np.random.default_rng([seed, tid, 7 + int(sticky)])
+        a, left = 0, 0
+        for _ in range(350):
+            t0 = time.perf_counter()
+            expert.act(env)
+            t_act += time.perf_counter() - t0
+            labels += 1
+            if left <= 0:
+                a, left = int(rng.integers(4)), (int(rng.integers(10, 31)) if sticky else 1)
+            left -= 1
+            env.step(a)
+    return labels / max(t_act, 1e-9)
+
+
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--tasks", type=int, default=1000)
     p.add_argument("--stride", type=int, default=1)
+    p.add_argument("--policy-tasks", type=int, default=50, help="tasks for the random-policy label rates")
     args = p.parse_args(argv)
     tasks = list(range(0, args.tasks, args.stride))
     for perturb in (False, True):
@@ -50,6 +78,13 @@ def main(argv=None) -> None:
         name = "perturbed" if perturb else "start"
         print(f"{name:>9s}: {len(tasks)} tasks  mean completion {comp.mean():.3f}  median {np.median(comp):.3f}  "
               f">=0.9: {np.mean(comp >= 0.9):.2f}  labels/s {rate:,.0f}  "
+              f"({time.perf_counter() - t0:.0f} s)")
+    ptasks = list(range(0, 1000, max(1, 1000 // max(args.policy_tasks, 1))))[:args.policy_tasks]
+    for sticky in (False, True):
+        t0 = time.perf_counter()
+        rate = label_rate_on_policy(ptasks, sticky)
+        name = "sticky-random" if sticky else "random"
+        print(f"{name:>13s} policy states: {len(ptasks)} tasks x 350  labels/s {rate:,.0f}  "
               f"({time.perf_counter() - t0:.0f} s)")
 
 

@@ -280,6 +280,55 @@ def test_expert_from_start_and_perturbed():
 START_FLOOR, PERTURBED_FLOOR = 0.93, 0.88  # this sample gives 0.965 / 0.933
 
 
+def test_expert_gripper_field_matches_dense_bfs():
+    """The lazy bitset BFS gives the dense numpy BFS's distances (finite and infinite ones)."""
+    from gpl_dist.experts import relocation as rx
+
+    rng = np.random.default_rng(0)
+    for trial in range(4):
+        blocks = np.array(MOVABLE_START, dtype=float) + rng.uniform(-0.3, 0.3, size=(3, 2))
+        goal = (round(rng.uniform(0.0, 1.0) / 0.04) * 0.04, round(rng.uniform(-1.0, 1.0) / 0.04) * 0.04)
+        dense = rx.gripper_cost_to_go(goal, blocks, (-1, -1))  # start off the grid: BFS to exhaustion
+        field = rx.gripper_field(goal, blocks)
+        cells = rng.integers(0, [rx._GNX, rx._GNY], size=(300, 2))
+        if trial % 2:  # a far cell first: the field grows in one go
+            cells = cells[np.argsort(-np.nan_to_num(dense[cells[:, 0], cells[:, 1]], posinf=-1))]
+        for i, j in cells:
+            assert field.dist(int(i), int(j)) == dense[i, j], (trial, i, j)
+        assert field.dist(-1, 0) == np.inf and field.dist(0, rx._GNY) == np.inf
+
+
+def test_expert_on_random_policy_states():
+    """A DAgger worker's labels: every state of a random policy gets an action, cheaply.
+
+    Gripper fields are cached per (task, movable-block cells, goal cell) and grown lazily, so they
+    are not recomputed when the gripper wanders (``benchmarks/relocation_expert.py`` measures the
+    rate: well above 10k labels/s on such states)."""
+    import time
+
+    from gpl_dist.experts.relocation import RelocationExpert
+
+    expert = RelocationExpert()
+    labels, t_act = 0, 0.0
+    for tid in (3, 500):
+        env = RelocationEnv(tid)
+        env.reset(seed=tid)
+        rng = np.random.default_rng(tid)
+        a, left = 0, 0
+        for _ in range(350):
+            t0 = time.perf_counter()
+            label = expert.act(env)
+            t_act += time.perf_counter() - t0
+            labels += 1
+            assert label in (0, 1, 2, 3)
+            if left <= 0:
+                a, left = int(rng.integers(4)), int(rng.integers(10, 31))
+            left -= 1
+            env.step(a)
+    assert len(expert._grip_plans) < labels // 2
+    assert labels / t_act > 1000  # loose (slow CI machines); ~700/s before the lazy fields
+
+
 def test_render():
     env = RelocationEnv(8, render_mode="rgb_array")
     env.reset(seed=0)
