@@ -31,8 +31,8 @@ while pushing; the block stops within ~0.02 once the gripper stops pushing):
    learner's states, where the gripper bumps blocks, the dense BFS was rerun nearly every step).
 
 Figures (``benchmarks/relocation_expert.py``, all 1000 tasks): mean completion 0.952 from the
-start, 0.917 from perturbed states; labels/s on one core: ~16k on the expert's own states, ~35k
-on a uniformly random policy's, ~20k on a sticky random policy's (a DAgger worker's early
+start, 0.917 from perturbed states; labels/s on one core: ~12-14k on the expert's own states, ~34k
+on a uniformly random policy's, ~23k on a sticky random policy's (a DAgger worker's early
 rounds). Residual losses: tight passes next to fixed blocks (the U snags), long tasks that run
 out of time (pushing is 0.65 units/s), and a few approach dead-locks when the standoff lies on
 the edge of the dilated obstacles.
