@@ -164,7 +164,11 @@ class BufferReader:
 
     # --------------------------------------------------------------------------------------------
     def load_training_view(self, capacity_tuples: int = 1_000_000, trajectory_stride: int = 25) -> TrainingView:
-        """Newest ``capacity_tuples`` labelled states (whole attempts, FIFO over committed rounds)."""
+        """Newest ``capacity_tuples`` labelled states (whole attempts, FIFO over committed rounds).
+
+        Rounds are kept newest first while they fit whole; of the first round that does not fit, a
+        random subset of whole attempts (seeded by the round index) fills the rest.
+        """
         if trajectory_stride < 1:
             raise ValueError("trajectory_stride must be at least 1")
         loc = self.location
@@ -174,7 +178,7 @@ class BufferReader:
         manifests: list[RoundManifest] = []
         tables: list[pa.Table] = []
         remaining = int(capacity_tuples)
-        first_kept: list[int] = []  # per loaded round: index of its first attempt in the window
+        keep_masks: list[np.ndarray] = []  # per loaded round: which of its attempts are in the window
         for r in reversed(rounds):
             if remaining <= 0:
                 break
@@ -187,15 +191,22 @@ class BufferReader:
             if t is None or t.num_rows == 0:
                 continue
             lengths = t.column("length").to_numpy().astype(np.int64)
-            from_end = np.cumsum(lengths[::-1])
-            n_fit = int(np.searchsorted(from_end, remaining, side="right"))
-            remaining -= int(from_end[n_fit - 1]) if n_fit else 0
+            keep = np.ones(t.num_rows, bool)
+            if lengths.sum() > remaining:
+                # The oldest round in the window does not fit whole. Its attempts are all equally
+                # new, so keep a random subset of whole attempts (seeded by the round) rather than
+                # its last units: otherwise the same tasks would be left out of training every round.
+                order = np.random.default_rng([0x5EED, r]).permutation(t.num_rows)
+                n_fit = int(np.searchsorted(np.cumsum(lengths[order]), remaining, side="right"))
+                keep[:] = False
+                keep[order[:n_fit]] = True
+            remaining -= int(lengths[keep].sum())
             manifests.append(m)
             tables.append(t)
-            first_kept.append(t.num_rows - n_fit)
-            if n_fit < t.num_rows:
-                break  # FIFO: an older attempt did not fit, so nothing older is kept
-        manifests.reverse(), tables.reverse(), first_kept.reverse()
+            keep_masks.append(keep)
+            if not keep.all():
+                break  # FIFO: part of this round did not fit, so nothing older is kept
+        manifests.reverse(), tables.reverse(), keep_masks.reverse()
         for m in manifests:
             if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (obs_shape, obs_dtype):
                 raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} differ from {obs_shape} {obs_dtype}")
@@ -206,11 +217,7 @@ class BufferReader:
         keys = att.column("attempt_key").to_numpy()
         if not (np.diff(keys) > 0).all():
             raise BufferIntegrityError("attempt keys of the committed rounds are not strictly increasing")
-        in_window = np.zeros(len(keys), bool)
-        off = 0
-        for t, fk in zip(tables, first_kept):
-            in_window[off + fk : off + t.num_rows] = True
-            off += t.num_rows
+        in_window = np.concatenate(keep_masks)
         ctx_col = att.column("context_keys").combine_chunks()
         ctx_off = ctx_col.offsets.to_numpy()
         ctx_val = ctx_col.values.to_numpy()[ctx_off[0] : ctx_off[-1]]
@@ -273,9 +280,14 @@ class BufferReader:
                 if len(win):
                     lo = int(obs_start_all[win[0]])
                     hi = int(obs_start_all[win[-1]] + lengths[new_row[win[-1]]])
-                    m_rows = hi - lo
-                    observations[pos : pos + m_rows] = z[lo:hi]
-                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"]).slice(lo, m_rows)
+                    # rows of the kept attempts; one contiguous run unless the window cut a round
+                    take = np.concatenate([obs_start_all[i] + np.arange(lengths[new_row[i]]) for i in win]) - lo
+                    m_rows = len(take)
+                    contiguous = m_rows == hi - lo
+                    observations[pos : pos + m_rows] = z[lo:hi] if contiguous else z[lo:hi][take]
+                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"]).slice(lo, hi - lo)
+                    if not contiguous:
+                        tup = tup.take(pa.array(take))
                     if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(keys[win], lengths[new_row[win]])):
                         raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
                     expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()

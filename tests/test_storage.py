@@ -183,25 +183,29 @@ def test_pyarrow_and_duckdb_see_only_committed_data(tmp_path):
 def test_fifo_capacity_keeps_newest_whole_attempts_and_context(tmp_path):
     root = tmp_path / "run"
     expected = write_run(root, GRID, rounds=3, units=2, tasks=4, k=3, steps=(5, 40))
-    order = sorted(expected)  # oldest first
-    total = sum(expected[k][0].length for k in order)
-    capacity = total // 2 + 7
-    kept, used = [], 0
-    for key in reversed(order):
-        n = expected[key][0].length
-        if used + n > capacity:
-            break
-        kept.append(key)
-        used += n
+    by_round = {}
+    for key, (a, r, u, seq) in expected.items():
+        by_round.setdefault(r, []).append(key)
+    newest, partial = max(by_round), max(by_round) - 1
+    newest_tuples = sum(expected[k][0].length for k in by_round[newest])
+    capacity = newest_tuples + sum(expected[k][0].length for k in by_round[partial]) // 2
     view = BufferReader(root).load_training_view(capacity_tuples=capacity, trajectory_stride=5)
-    assert view.num_tuples == used <= capacity
-    assert sorted(view.attempt_keys[view.in_window].tolist()) == sorted(kept)
+    kept = view.attempt_keys[view.in_window].tolist()
+    kept_rounds = {expected[k][1] for k in kept}
+    # the newest round whole, part of the one before, nothing older
+    assert set(by_round[newest]) <= set(kept) and kept_rounds == {newest, partial}
+    partial_kept = [k for k in kept if expected[k][1] == partial]
+    assert 0 < len(partial_kept) < len(by_round[partial])
+    assert view.num_tuples == sum(expected[k][0].length for k in kept) <= capacity
+    # the partial round's attempts are spread over its units, not only its last one
+    assert len({expected[k][2] for k in partial_kept}) == len({expected[k][2] for k in by_round[partial]})
     context_only = view.attempt_keys[~view.in_window]
-    assert len(context_only) > 0  # some kept attempts lost their earlier attempts' tuples
     needed = {c for key in kept for c in _context_keys(expected, key)}
     assert set(context_only.tolist()) == needed - set(kept)
     assert view.rounds == tuple(sorted({expected[k][1] for k in view.attempt_keys.tolist()}))
     check_view(view, expected, 5)
+    again = BufferReader(root).load_training_view(capacity_tuples=capacity, trajectory_stride=5)
+    assert np.array_equal(again.attempt_keys, view.attempt_keys)  # the subset is a function of the round
     assert BufferReader(root).load_training_view(capacity_tuples=0).num_tuples == 0
 
 
