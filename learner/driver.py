@@ -25,6 +25,7 @@ import torch
 
 from gpl_dist.config import RunConfig, config_to_dict, save_config
 from gpl_dist.domains import get_domain
+from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import build_model
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
@@ -62,24 +63,16 @@ def make_units(tasks: tuple[int, ...], round_index: int, cfg: RunConfig, split: 
     ]
 
 
-def completion_curve(view, round_index: int, max_attempts: int) -> list[float]:
+def completion_curve(reader, round_index: int, max_attempts: int) -> list[float]:
     """Mean completion after 0..max_attempts-1 corrections over the tasks collected in a round.
 
-    A task that stopped early (solved) carries its last completion forward.
+    Read from the round's committed attempts table (all of it, small), not from the training view,
+    which may hold only part of the round.
     """
-    sel = np.flatnonzero(np.asarray(view.round_index) == round_index)
-    if sel.size == 0:
-        return [0.0] * max_attempts
-    tasks = np.asarray(view.task_id)[sel]
-    k = np.asarray(view.attempt_index)[sel]
-    comp = np.asarray(view.completion)[sel]
-    uniq, inv = np.unique(tasks, return_inverse=True)
-    table = np.full((uniq.size, max_attempts), np.nan)
-    table[inv, np.minimum(k, max_attempts - 1)] = comp
-    for col in range(1, max_attempts):
-        missing = np.isnan(table[:, col])
-        table[missing, col] = table[missing, col - 1]
-    return [float(x) for x in np.nan_to_num(table).mean(axis=0)]
+    att = reader.read_table("attempts", rounds=[round_index], columns=["task_id", "attempt_index", "completion"])
+    curve = completion_by_corrections(att.column("task_id").to_numpy(), att.column("attempt_index").to_numpy(),
+                                      att.column("completion").to_numpy(), max_attempts)
+    return [float(x) for x in curve]
 
 
 @dataclass(frozen=True)
@@ -194,7 +187,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
             t1 = time.perf_counter()
             view = reader.load_training_view(cfg.buffer.capacity_tuples, domain.trajectory_stride)
             metrics["load_seconds"] = time.perf_counter() - t1
-            metrics["completion_by_corrections"] = completion_curve(view, r, max_attempts)
+            metrics["completion_by_corrections"] = completion_curve(reader, r, max_attempts)
             bar = bars.training(r, cfg.training.num_epochs_per_round)
 
             def on_epoch(epoch: int, loss: float, acc: float, bar=bar) -> None:

@@ -120,14 +120,3 @@ class Learner:
         loss.backward()
         self.optimizer.step()
         return float(loss.detach()), int((logits.detach().argmax(1) == labels).sum())
-
-    @torch.no_grad()
-    def evaluate_loss(self, tv: TensorView, idx: torch.Tensor) -> float:
-        """Cross-entropy on states ``idx`` without updating (for tests and monitoring)."""
-        was_training = self.model.training
-        self.model.eval()
-        obs, labels, cond, rows = tv.batch(idx)
-        dev = self.device
-        loss = nn.functional.cross_entropy(self.model(obs.to(dev), cond.to(dev), rows.to(dev)), labels.to(dev))
-        self.model.train(was_training)
-        return float(loss)

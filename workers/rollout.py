@@ -27,6 +27,7 @@ import torch
 
 from gpl_dist.corrections import make_corrector
 from gpl_dist.experts import make_expert
+from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model, load_numpy_state
 from gpl_dist.records import Attempt, WorkUnit
 from gpl_dist.roles import DomainSpec
@@ -268,18 +269,6 @@ class RolloutWorker:
 
 
 def completion_by_attempt(attempts: Sequence[Attempt], max_attempts: int) -> np.ndarray:
-    """Mean completion after 0..max_attempts-1 corrections over the tasks in ``attempts``.
-
-    A task solved at attempt ``j`` is not rolled out again; its completion is carried forward to every
-    later index (the paper's protocol counts a finished task as finished from then on).
-    """
-    by_task: dict[int, dict[int, Attempt]] = {}
-    for a in attempts:
-        by_task.setdefault(a.task_id, {})[a.attempt_index] = a
-    table = np.zeros((len(by_task), max_attempts))
-    for row, per in enumerate(by_task.values()):
-        last = None
-        for k in range(max_attempts):
-            last = per.get(k, last)
-            table[row, k] = last.completion if last is not None else 0.0
-    return table.mean(axis=0) if len(by_task) else np.zeros(max_attempts)
+    """Mean completion after 0..max_attempts-1 corrections over the tasks in ``attempts``."""
+    return completion_by_corrections(np.array([a.task_id for a in attempts]), np.array([a.attempt_index for a in attempts]),
+                                     np.array([a.completion for a in attempts]), max_attempts)

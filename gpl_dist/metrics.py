@@ -1,0 +1,25 @@
+"""The paper's headline metric: mean completion after 0..K corrections."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def completion_by_corrections(task_ids: np.ndarray, attempt_index: np.ndarray, completion: np.ndarray,
+                              max_attempts: int) -> np.ndarray:
+    """Mean over tasks of the completion of attempt ``k`` (after ``k`` corrections), ``k < max_attempts``.
+
+    One entry per attempt: ``task_ids``, ``attempt_index`` and ``completion`` are parallel arrays.
+    A task that stopped early (it was solved, so it was not rolled out again) carries its last
+    completion forward to every later ``k``.
+    """
+    task_ids = np.asarray(task_ids)
+    if task_ids.size == 0:
+        return np.zeros(max_attempts)
+    uniq, inv = np.unique(task_ids, return_inverse=True)
+    table = np.full((uniq.size, max_attempts), np.nan)
+    table[inv, np.minimum(np.asarray(attempt_index), max_attempts - 1)] = np.asarray(completion, dtype=float)
+    for col in range(1, max_attempts):
+        missing = np.isnan(table[:, col])
+        table[missing, col] = table[missing, col - 1]
+    return np.nan_to_num(table).mean(axis=0)
