@@ -148,3 +148,61 @@ def test_shared_earlier_attempt_is_encoded_once_and_gives_same_result():
     dup = _replace(cond, trajectories=torch.cat([cond.trajectories[:2]] * 2),
                    correction_ids=torch.cat([cond.correction_ids[:2]] * 2), slots=torch.tensor([[0, 1], [2, 3]]))
     assert torch.allclose(_z(model, cond), _z(model, dup), atol=1e-6)
+
+
+def _reference_grid_encoder(enc, obs):
+    """``enc`` computed the textbook way: one-hot channels-first input through ``nn.Conv2d`` layers."""
+    from torch import nn
+    x = torch.cat([nn.functional.one_hot(obs[..., c].long(), n) for c, n in
+                   enumerate(enc.categories)], dim=-1).float().permute(0, 3, 1, 2)
+    for conv in enc.convs:
+        o, d = conv.out_dim, conv.proj.weight.shape[1]
+        # proj rows are the taps (0,0), (0,1), (1,0), (1,1), each a block of o filters
+        weight = conv.proj.weight.view(2, 2, o, d).permute(2, 3, 0, 1)
+        x = torch.relu(nn.functional.conv2d(x, weight, conv.bias))
+    return enc.mlp(x.permute(0, 2, 3, 1).flatten(1))
+
+
+@pytest.mark.parametrize("channels", [(8, 8), (4, 4), (3,)])
+def test_grid_encoder_is_a_conv2d_over_one_hot_channels(channels):
+    """The lookup-based first layer and the shifted-sum convolutions compute exactly Conv2d's function."""
+    from gpl_dist.models.gpl import GridStateEncoder
+    d = get_domain("multiroom")
+    torch.manual_seed(0)
+    enc = GridStateEncoder(d.obs_shape, d.obs_categories, channels, (32,))
+    obs = random_obs(d, 64)
+    got = enc(obs)
+    upstream = torch.linspace(-1, 1, got.numel()).view_as(got)
+    (got * upstream).sum().backward()
+    fast_grads = [p.grad.clone() for p in enc.parameters()]
+    enc.zero_grad()
+    want = _reference_grid_encoder(enc, obs)
+    (want * upstream).sum().backward()
+    assert torch.allclose(got, want, atol=1e-5)
+    for fast, ref in zip(fast_grads, [p.grad for p in enc.parameters()]):
+        assert torch.allclose(fast, ref, atol=1e-4)
+
+
+def test_conv1d_channels_last_matches_conv1d():
+    from torch import nn
+    from gpl_dist.models.gpl import conv1d_k2_channels_last
+    torch.manual_seed(0)
+    conv = nn.Conv1d(16, 4, kernel_size=2)
+    x = torch.randn(9, 7, 16, requires_grad=True)
+    got = conv1d_k2_channels_last(conv, x)
+    want = conv(x.transpose(1, 2)).transpose(1, 2)
+    assert got.shape == (9, 6, 4)
+    assert torch.allclose(got, want, atol=1e-6)
+    g_fast = torch.autograd.grad(got.square().sum(), [x, conv.weight, conv.bias])
+    g_ref = torch.autograd.grad(want.square().sum(), [x, conv.weight, conv.bias])
+    for a, b in zip(g_fast, g_ref):
+        assert torch.allclose(a, b, atol=1e-5)
+
+
+def test_channel_groups_cover_every_channel_once_within_the_row_limit():
+    from gpl_dist.models.gpl import channel_groups
+    cats = (8, 7, 3, 7, 7, 2)
+    groups = channel_groups(cats)
+    assert [c for g in groups for c in g] == list(range(len(cats)))
+    assert all(np.prod([cats[c] for c in g]) <= 1024 for g in groups)
+    assert channel_groups((5000, 3)) == [(0,), (1,)]  # a channel larger than the limit stands alone

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.corrections import make_corrector
 from gpl_dist.experts import make_expert
 from gpl_dist.metrics import completion_by_corrections
@@ -123,6 +124,7 @@ class RolloutWorker:
                  worker_id: str = "worker-0", num_threads: int = 0):
         if num_threads:
             torch.set_num_threads(num_threads)
+        keep_freed_memory()
         self.domain = domain
         self.settings = settings
         self.writer = writer
@@ -202,26 +204,11 @@ class RolloutWorker:
                                            else envs[i].instruction)
                 except Exception as err:  # noqa: BLE001
                     self._fail(task_ids[i], "reset", err, failed, i)
-            with torch.no_grad():
+            with torch.inference_mode():
                 z = self.model.encode_conditioning(self._conditioning([instructions[i] for i in active],
                                                                       [histories[i] for i in active], k))
-            infos: list[dict] = [{}] * m
-            for t in range(steps):
-                obs_buf[:, t] = cur
-                with torch.no_grad():
-                    logits = self.model.action_logits(torch.from_numpy(cur), z)
-                actions = sample_actions(logits, action_rng, s.greedy_actions)
-                act_buf[:, t] = actions
-                for j, i in enumerate(active):
-                    if failed[i]:
-                        continue
-                    env = envs[i]
-                    try:
-                        if s.label_states:
-                            label_buf[j, t] = expert.act(env)
-                        cur[j], _, _, _, infos[j] = env.step(int(actions[j]))
-                    except Exception as err:  # noqa: BLE001 - one broken task must not end the unit
-                        self._fail(task_ids[i], "step/expert", err, failed, i)
+            infos = self._run_attempt(task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, cur,
+                                      action_rng, failed)
             for j, i in enumerate(active):
                 if failed[i]:
                     continue
@@ -249,6 +236,47 @@ class RolloutWorker:
                 histories[i].append((obs_buf[j, ::stride].copy(), corr_ids))
                 solved[i] = success
         return [a for per_task in attempts_out for a in per_task]
+
+    def _run_attempt(self, task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, first_obs,
+                     action_rng, failed) -> list[dict]:
+        """Step the ``active`` tasks' envs in lockstep for one attempt; fills the buffers in place.
+
+        The hot loop of collection: one batched policy forward per step, then per env one expert
+        label and one env step. Per-env work stays in plain Python lists (numpy scalar indexing
+        costs more than the env step's own bookkeeping); each step's observations are stacked
+        once into the attempt's buffer, which the next forward reads as a view.
+        """
+        s = self.settings
+        m, steps = len(active), self.domain.steps_per_attempt
+        active_envs = [envs[i] for i in active]
+        alive = [not failed[i] for i in active]
+        label = s.label_states
+        obs_buf[:, 0] = first_obs
+        last_obs = list(first_obs)
+        infos: list[dict] = [{}] * m
+        labels = [-1] * m
+        for t in range(steps):
+            with torch.inference_mode():
+                logits = self.model.action_logits(torch.from_numpy(obs_buf[:, t]), z)
+            actions = sample_actions(logits, action_rng, s.greedy_actions)
+            act_buf[:, t] = actions
+            for j, a in enumerate(actions.tolist()):
+                if not alive[j]:
+                    continue
+                env = active_envs[j]
+                try:
+                    if label:
+                        labels[j] = expert.act(env)
+                    last_obs[j], _, _, _, infos[j] = env.step(a)
+                except Exception as err:  # noqa: BLE001 - one broken task must not end the unit
+                    alive[j] = False
+                    labels[j] = -1
+                    self._fail(task_ids[active[j]], "step/expert", err, failed, active[j])
+            if label:
+                label_buf[:, t] = labels
+            if t + 1 < steps:
+                np.stack(last_obs, out=obs_buf[:, t + 1])
+        return infos
 
     def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]], k: int) -> Conditioning:
         vocab = self.domain.vocabulary

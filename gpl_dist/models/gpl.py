@@ -100,12 +100,42 @@ def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> t
     return nn.Sequential(*layers), d
 
 
+class _ShiftSum(torch.autograd.Function):
+    """Sum of the kernel taps of a stride-1 convolution whose taps were projected separately.
+
+    Input ``(B, H, W, 4, o)`` (2x2 kernel, taps in (0,0), (0,1), (1,0), (1,1) order) -> ``(B, H-1,
+    W-1, o)``, or ``(B, L, 2, o)`` (kernel 2 over a sequence) -> ``(B, L-1, o)``. Written as a
+    function because autograd's backward of four overlapping slices zero-fills a full-size buffer
+    per slice and adds them up; this backward fills one buffer once.
+    """
+
+    @staticmethod
+    def forward(ctx, y: torch.Tensor) -> torch.Tensor:
+        ctx.y_shape = y.shape
+        if y.dim() == 4:
+            return y[:, :-1, 0] + y[:, 1:, 1]
+        return y[:, :-1, :-1, 0] + y[:, :-1, 1:, 1] + y[:, 1:, :-1, 2] + y[:, 1:, 1:, 3]
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        gy = grad.new_zeros(ctx.y_shape)
+        if gy.dim() == 4:
+            gy[:, :-1, 0] = grad
+            gy[:, 1:, 1] = grad
+        else:
+            gy[:, :-1, :-1, 0] = grad
+            gy[:, :-1, 1:, 1] = grad
+            gy[:, 1:, :-1, 2] = grad
+            gy[:, 1:, 1:, 3] = grad
+        return gy
+
+
 class Conv2x2(nn.Module):
     """``Conv2d(kernel_size=2, stride=1)`` on channels-last input ``(B, H, W, D)`` -> ``(B, H-1, W-1, out)``.
 
-    Each cell is projected once for each of the 4 kernel cells (one matrix product), and the output
-    sums the 4 shifted projections. On a CPU this is several times faster than MKL-DNN's
-    convolution for 7x7 grids and a handful of filters.
+    ``proj.weight`` holds the 4 taps (0,0), (0,1), (1,0), (1,1) as consecutive blocks of ``out``
+    rows: a one-hot input's projection is then a lookup (``GridStateEncoder.first_layer``). On
+    dense input (the later layers) MKL-DNN's convolution is the fastest form measured.
     """
 
     def __init__(self, in_dim: int, out_dim: int):
@@ -116,11 +146,39 @@ class Conv2x2(nn.Module):
         nn.init.uniform_(self.proj.weight, -bound, bound)
         self.bias = nn.Parameter(torch.empty(out_dim).uniform_(-bound, bound))
 
+    def kernel(self) -> torch.Tensor:
+        """``(out, in, 2, 2)``: ``proj.weight`` as a ``Conv2d`` kernel."""
+        return self.proj.weight.view(2, 2, self.out_dim, -1).permute(2, 3, 0, 1)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = self.proj(x)
-        o = self.out_dim
-        return (y[:, :-1, :-1, :o] + y[:, :-1, 1:, o:2 * o] + y[:, 1:, :-1, 2 * o:3 * o]
-                + y[:, 1:, 1:, 3 * o:] + self.bias)
+        y = nn.functional.conv2d(x.permute(0, 3, 1, 2).contiguous(), self.kernel(), self.bias)
+        return y.permute(0, 2, 3, 1)
+
+
+def conv1d_k2_channels_last(conv: nn.Conv1d, x: torch.Tensor) -> torch.Tensor:
+    """``conv`` (kernel 2, stride 1) applied to channels-last ``(B, L, E)`` -> ``(B, L-1, out)``.
+
+    The same function as ``conv(x.transpose(1, 2)).transpose(1, 2)`` with ``conv``'s own
+    parameters (checkpoints are unchanged), as one matrix product and a shifted sum: cheaper than
+    MKL-DNN's convolution for sequences of a few steps.
+    """
+    out = conv.out_channels
+    w = conv.weight.permute(2, 0, 1).reshape(2 * out, conv.in_channels)  # taps stacked
+    y = nn.functional.linear(x, w)
+    return _ShiftSum.apply(y.view(*y.shape[:2], 2, out)) + conv.bias
+
+
+def channel_groups(categories: tuple[int, ...], max_rows: int = 1024) -> list[tuple[int, ...]]:
+    """Consecutive channels grouped while the product of their category counts stays <= max_rows."""
+    groups: list[list[int]] = []
+    rows = max_rows + 1
+    for c, n in enumerate(categories):
+        if rows * n > max_rows:
+            groups.append([])
+            rows = 1
+        groups[-1].append(c)
+        rows *= n
+    return [tuple(g) for g in groups]
 
 
 class GridStateEncoder(nn.Module):
@@ -129,6 +187,12 @@ class GridStateEncoder(nn.Module):
     Every channel holds a categorical code, so the input is the one-hot encoding of each channel
     (``categories[c]`` codes for channel ``c``), not the raw integers; the convolutions are
     ``Conv2x2`` layers in channels-last form.
+
+    The first layer never builds the one-hot tensor: the projection of a one-hot cell is a sum of
+    weight columns, so channels are grouped (``channel_groups``), each group's combinations get a
+    row of summed columns, and each cell looks its rows up. The same function and parameters as
+    the one-hot product, several times cheaper forward and backward (index_select / index_add on
+    ``B*H*W`` rows instead of a dense ``(B*H*W, sum(categories))`` input).
     """
 
     def __init__(self, obs_shape: tuple[int, ...], categories: tuple[int, ...], channels: tuple[int, ...],
@@ -137,21 +201,41 @@ class GridStateEncoder(nn.Module):
         h, w, c = obs_shape
         if len(categories) != c:
             raise ValueError(f"need one category count per channel ({c}), got {categories}")
+        self.categories = tuple(categories)
         self.num_inputs = int(sum(categories))
-        offsets = torch.tensor([0, *np.cumsum(categories)[:-1]], dtype=torch.long)
-        self.register_buffer("offsets", offsets, persistent=False)
+        offsets = [0, *np.cumsum(categories)[:-1].tolist()]
+        self.groups = channel_groups(categories)
+        for i, group in enumerate(self.groups):
+            counts = [categories[ch] for ch in group]
+            combos = np.stack(np.meshgrid(*[np.arange(n) for n in counts], indexing="ij"), -1).reshape(-1, len(group))
+            columns = combos + np.array([offsets[ch] for ch in group])  # one-hot column of each channel's code
+            strides = np.cumprod([1, *counts[::-1]])[:-1][::-1].copy()  # row of a combination = codes . strides
+            self.register_buffer(f"group_columns_{i}", torch.from_numpy(columns).long(), persistent=False)
+            self.register_buffer(f"group_strides_{i}", torch.from_numpy(strides).long(), persistent=False)
         widths = (self.num_inputs, *channels)
         self.convs = nn.ModuleList(Conv2x2(a, b) for a, b in zip(widths[:-1], widths[1:]))
         h, w = h - len(channels), w - len(channels)
         self.mlp, self.out_dim = mlp(mlp_sizes, channels[-1] * h * w)
 
+    def first_projection(self, obs: torch.Tensor) -> torch.Tensor:
+        """``convs[0].proj(one_hot(obs))`` as ``(B, H, W, 4 * out)``, by lookups."""
+        weight_t = self.convs[0].proj.weight.t()  # (num_inputs, 4 * out)
+        codes = obs.long()
+        y = None
+        for i, group in enumerate(self.groups):
+            table = weight_t[getattr(self, f"group_columns_{i}")].sum(1)  # (rows, 4 * out)
+            rows = (codes[..., group[0]:group[-1] + 1] * getattr(self, f"group_strides_{i}")).sum(-1)
+            part = table.index_select(0, rows.flatten())
+            y = part if y is None else y + part
+        return y.view(*obs.shape[:3], -1)
+
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        b, h, w, _ = obs.shape
-        x = torch.zeros(b, h, w, self.num_inputs, device=obs.device)
-        x.scatter_(3, obs.long() + self.offsets, 1.0)
-        for conv in self.convs:
+        first = self.convs[0]
+        y = self.first_projection(obs)
+        x = torch.relu(_ShiftSum.apply(y.view(*y.shape[:3], 4, first.out_dim)) + first.bias)
+        for conv in self.convs[1:]:
             x = torch.relu(conv(x))
-        return self.mlp(x.flatten(1))
+        return self.mlp(x.reshape(x.shape[0], -1))
 
 
 class VectorStateEncoder(nn.Module):
@@ -182,9 +266,8 @@ class TextEncoder(nn.Module):
         self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1))
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
-        x = self.embedding(ids).transpose(1, 2)  # (B, E, L)
-        x = torch.relu(self.conv(x))
-        return self.mlp(x.flatten(1))
+        x = torch.relu(conv1d_k2_channels_last(self.conv, self.embedding(ids)))  # (B, L-1, conv)
+        return self.mlp(x.transpose(1, 2).flatten(1))  # channel-major, as Conv1d's output
 
 
 class TrajectoryEncoder(nn.Module):
@@ -203,8 +286,11 @@ class TrajectoryEncoder(nn.Module):
 
     def forward(self, traj: torch.Tensor) -> torch.Tensor:
         b, s = traj.shape[:2]
-        x = self.state(traj.reshape(b * s, *traj.shape[2:])).reshape(b, s, -1).transpose(1, 2)
-        x = torch.relu(self.conv(x))
+        x = self.state(traj.reshape(b * s, *traj.shape[2:])).reshape(b, s, -1)
+        if self.conv.kernel_size[0] == 2:
+            x = torch.relu(conv1d_k2_channels_last(self.conv, x)).transpose(1, 2)
+        else:  # a one-sample trajectory
+            x = torch.relu(self.conv(x.transpose(1, 2)))
         return self.mlp(x.flatten(1))
 
 
