@@ -1,6 +1,6 @@
 """Collection throughput in labelled tuples/s, side by side in one run (multi-room).
 
-    python benchmarks/collect_speed.py [--tasks 256] [--corrections 5]
+    python benchmarks/collect_speed.py [--tasks 512] [--tasks-per-unit 128] [--corrections 5]
 
 Rows:
 - bare env, random actions (the ceiling): one process, and two processes at once (the 2-core
@@ -9,7 +9,9 @@ Rows:
   labels, corrections, shard writes, round commit) for one DAgger round over ``--tasks`` tasks;
 - a naive loop, as the authors' code and the imitation library collect: one env at a time, a
   batch-1 policy forward and an expert query per step, corrections in the same process, no
-  storage.
+  storage;
+- for reference, the batched policy forward alone at the unit's batch size: every labelled tuple
+  costs one state of it, next to one env step.
 
 Targets on 2 cores (issue): 2 workers >= 0.5x the 2-core ceiling, >= 1.8x one worker, >= 10x naive.
 """
@@ -78,6 +80,26 @@ def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, ta
     return tuples / seconds, tuples
 
 
+def policy_forward_rate(batch: int, seconds: float) -> float:
+    """States/s of the batched policy forward alone (one process), as a worker runs it each step."""
+    from gpl_dist.allocator import keep_freed_memory
+    from gpl_dist.domains import get_domain
+    from gpl_dist.models.gpl import build_model
+
+    keep_freed_memory()
+    d = get_domain("multiroom")
+    model = build_model(d, seed=0).eval()
+    rng = np.random.default_rng(0)
+    obs = torch.from_numpy((rng.random((batch,) + d.obs_shape) * np.array(d.obs_categories)).astype(np.uint8))
+    z = torch.zeros(batch, model.conditioning_dim)
+    n, t0 = 0, time.perf_counter()
+    with torch.inference_mode():
+        while time.perf_counter() - t0 < seconds:
+            model.action_logits(obs, z)
+            n += batch
+    return n / (time.perf_counter() - t0)
+
+
 def naive_rate(tasks: tuple[int, ...], corrections: int) -> float:
     """One env, batch-1 forward, per-step expert query (the original code's and imitation's loop)."""
     from gpl_dist.corrections import make_corrector
@@ -120,9 +142,9 @@ def naive_rate(tasks: tuple[int, ...], corrections: int) -> float:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tasks", type=int, default=256)
+    p.add_argument("--tasks", type=int, default=512)
     p.add_argument("--corrections", type=int, default=5)
-    p.add_argument("--tasks-per-unit", type=int, default=32)
+    p.add_argument("--tasks-per-unit", type=int, default=128)
     p.add_argument("--seconds", type=float, default=3.0)
     p.add_argument("--naive-tasks", type=int, default=8)
     args = p.parse_args()
@@ -135,11 +157,14 @@ def main() -> None:
     w1, n1 = gpl_dist_rate(1, tasks, args.corrections, args.tasks_per_unit)
     w2, n2 = gpl_dist_rate(2, tasks, args.corrections, args.tasks_per_unit)
     naive = naive_rate(tasks[: args.naive_tasks], args.corrections)
+    forward = policy_forward_rate(args.tasks_per_unit, args.seconds)
     print(f"{'bare env, random actions, 1 process':<44} {bare1:>10,.0f} steps/s")
     print(f"{'bare env, random actions, 2 processes':<44} {bare2:>10,.0f} steps/s   (2-core ceiling)")
     print(f"{'gpl-dist, 1 rollout actor':<44} {w1:>10,.0f} tuples/s  ({n1:,} tuples)")
     print(f"{'gpl-dist, 2 rollout actors':<44} {w2:>10,.0f} tuples/s  ({n2:,} tuples)")
     print(f"{'naive loop (batch-1 policy, per-step expert)':<44} {naive:>10,.0f} tuples/s")
+    print(f"{f'policy forward alone, batch {args.tasks_per_unit}, 1 process':<44} {forward:>10,.0f} states/s"
+          f"   ({1e6 / forward:.1f} us a state; a bare env step: {1e6 / bare1:.1f} us)")
     print(f"ratios: 2 actors / 2-core ceiling = {w2 / bare2:.2f} (target >= 0.5); 2 actors / 1 actor = {w2 / w1:.2f} "
           f"(target >= 1.8); 2 actors / naive = {w2 / naive:.1f} (target >= 10)")
 

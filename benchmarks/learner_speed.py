@@ -1,10 +1,7 @@
 """Learner throughput: 5 epochs over 1e6 multi-room tuples loaded from the buffer, beside the same
 model on synthetic in-memory tensors of the same shapes, measured in one run.
 
-    python benchmarks/learner_speed.py [--tuples 1000000] [--epochs 5] [--processes 1,2]
-
-Each ``--processes`` count trains from the buffer (``training.num_processes``: data-parallel
-learner processes, one core each); the largest count also trains on the synthetic tensors.
+    python benchmarks/learner_speed.py [--tuples 1000000] [--epochs 5] [--threads 2]
 
 The buffer is filled once with real rollouts (a freshly initialised policy, expert labels, the
 real correction oracle) by the serial worker, committed as one round, then loaded through
@@ -67,27 +64,20 @@ def synthetic_view_like(view):
     return Synthetic
 
 
-def train(view, epochs: int, batch_size: int, chunk: int, processes: int) -> tuple[float, float]:
+def train(view, epochs: int, batch_size: int, chunk: int, threads: int) -> tuple[float, float]:
     from gpl_dist.config import TrainingConfig
     from gpl_dist.domains import get_domain
     from gpl_dist.models.gpl import build_model
     from learner.batches import TensorView
-    from learner.parallel import ModelSpec
     from learner.trainer import Learner
 
     cfg = TrainingConfig(num_epochs_per_round=epochs, batch_size=batch_size, states_per_chunk=chunk,
-                         num_processes=processes)
-    learner = Learner(build_model(get_domain("multiroom"), seed=0), cfg, spec=ModelSpec("multiroom", "gpl", 16))
-    try:
-        tv = TensorView.from_view(view)
-        t0 = time.perf_counter()
-        stats = learner.train_round(tv)
-        seconds = time.perf_counter() - t0
-        if learner.num_processes != processes:
-            raise RuntimeError(f"asked for {processes} learner processes, trained with {learner.num_processes}")
-    finally:
-        learner.close()
-    return seconds, stats.loss
+                         num_threads=threads)
+    learner = Learner(build_model(get_domain("multiroom"), seed=0), cfg)
+    tv = TensorView.from_view(view)
+    t0 = time.perf_counter()
+    stats = learner.train_round(tv)
+    return time.perf_counter() - t0, stats.loss
 
 
 def main() -> None:
@@ -96,7 +86,7 @@ def main() -> None:
     p.add_argument("--epochs", type=int, default=5)
     p.add_argument("--batch-size", type=int, default=512)
     p.add_argument("--chunk", type=int, default=16, help="training.states_per_chunk")
-    p.add_argument("--processes", default="1,2", help="learner process counts to compare, comma separated")
+    p.add_argument("--threads", type=int, default=2, help="torch intra-op threads (training.num_threads)")
     p.add_argument("--buffer", help="reuse an existing buffer root instead of collecting one")
     args = p.parse_args()
     from storage import BufferReader
@@ -111,24 +101,14 @@ def main() -> None:
     load_s = time.perf_counter() - t0
     n = view.num_tuples
     print(f"loaded {n:,} tuples, {view.num_attempts:,} attempts in {load_s:.1f} s", flush=True)
-    counts = [int(c) for c in args.processes.split(",")]
+    buf_s, buf_loss = train(view, args.epochs, args.batch_size, args.chunk, args.threads)
+    syn_s, _ = train(synthetic_view_like(view), args.epochs, args.batch_size, args.chunk, args.threads)
     total = n * args.epochs
-    per_count = {}
-    for c in counts:
-        per_count[c] = train(view, args.epochs, args.batch_size, args.chunk, c)
-    best = max(counts)
-    syn_s, _ = train(synthetic_view_like(view), args.epochs, args.batch_size, args.chunk, best)
-    print(f"batch {args.batch_size}, states_per_chunk {args.chunk}, {args.epochs} epochs over {n:,} tuples")
-    for c in counts:
-        s_, loss = per_count[c]
-        print(f"from buffer, {c} learner process{'es' if c > 1 else '  '}: {s_:7.1f} s {total / s_:>10,.0f} samples/s"
-              f"  (last-epoch loss {loss:.3f})")
-    print(f"synthetic,   {best} learner process{'es' if best > 1 else '  '}: {syn_s:7.1f} s {total / syn_s:>10,.0f} samples/s")
-    buf_s = per_count[best][0]
-    if len(counts) > 1:
-        print(f"ratio {best} processes / {min(counts)}: {per_count[min(counts)][0] / buf_s:.2f}x")
-    print(f"ratio buffer/synthetic ({best} processes): {syn_s / buf_s:.2f}x (target >= 0.8); 5 epochs over 1e6 "
-          f"from the buffer: {(buf_s * 5 / args.epochs + load_s) * 1e6 / n:.1f} s including the load (target <= 60 s)")
+    print(f"threads {args.threads}, batch {args.batch_size}, states_per_chunk {args.chunk}, {args.epochs} epochs")
+    print(f"from buffer   : {buf_s:7.1f} s  {total / buf_s:>10,.0f} samples/s  (load {load_s:.1f} s; last-epoch loss {buf_loss:.3f})")
+    print(f"synthetic     : {syn_s:7.1f} s  {total / syn_s:>10,.0f} samples/s")
+    print(f"ratio buffer/synthetic: {syn_s / buf_s:.2f}x (target >= 0.8); 5 epochs over 1e6 from the buffer, load "
+          f"included: {(buf_s * 5 / args.epochs + load_s) * 1e6 / n:.1f} s (target <= 60 s)")
 
 
 if __name__ == "__main__":

@@ -85,9 +85,7 @@ class TrainingConfig:
     device: str = "auto"
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
     num_threads: int = 0
-    """Torch intra-op threads per learner process (0: cores / num_processes, or torch's default)."""
-    num_processes: int = 1
-    """Learner processes training data-parallel on this machine (0: one per CPU core)."""
+    """Torch intra-op threads in the learner (0 leaves torch's default)."""
 
 
 @dataclass(frozen=True)

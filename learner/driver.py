@@ -32,7 +32,6 @@ from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import Checkpoint, capture_rng, load_checkpoint, restore_rng, save_checkpoint
 from learner.collectors import SerialCollector, UnitResult
-from learner.parallel import ModelSpec
 from learner.trainer import Learner
 from workers.rollout import RolloutSettings
 
@@ -128,8 +127,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
     model = build_model(domain, cfg.model.variant, cfg.model.embedding_dim, seed=cfg.seed)
-    learner = Learner(model, cfg.training, seed=cfg.seed,
-                      spec=ModelSpec(domain.name, cfg.model.variant, cfg.model.embedding_dim))
+    learner = Learner(model, cfg.training, seed=cfg.seed)
     start_round, history = 0, []
     if resume and (ckpt_dir / "latest.pt").exists():
         ckpt = load_checkpoint(ckpt_dir)
@@ -211,7 +209,6 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     finally:
         if tb is not None:
             tb.close()
-        learner.close()
         if owns_collector:
             collector.close()
     return TrainingResult(run_dir, history)

@@ -98,3 +98,17 @@ def test_completion_curve_carries_solved_tasks_forward():
     assert curve.shape == (2,)
     assert curve[0] == pytest.approx(attempts[0].completion)
     assert curve[1] == pytest.approx(attempts[-1].completion)
+
+
+def test_sampled_actions_follow_the_softmax_and_greedy_takes_the_argmax():
+    import torch
+
+    from workers.rollout import sample_actions
+    logits = torch.tensor([[0.0, 1.0, 2.0, -1.0], [3.0, 0.0, 0.0, 0.0]]).repeat(50_000, 1)
+    actions = sample_actions(logits, np.random.default_rng(0), greedy=False).reshape(-1, 2)
+    for row in range(2):
+        freq = np.bincount(actions[:, row], minlength=4) / len(actions)
+        assert np.abs(freq - torch.softmax(logits[row], 0).numpy()).max() < 0.01
+    again = sample_actions(logits, np.random.default_rng(0), greedy=False).reshape(-1, 2)
+    assert np.array_equal(actions, again)
+    assert sample_actions(logits[:2], np.random.default_rng(0), greedy=True).tolist() == [2, 0]
