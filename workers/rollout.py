@@ -126,7 +126,7 @@ class RolloutWorker:
                  worker_id: str = "worker-0", num_threads: int = 0):
         if num_threads:
             torch.set_num_threads(num_threads)
-        keep_freed_memory()
+        keep_freed_memory()  # the batched forward's temporaries would page-fault afresh every step
         self.domain = domain
         self.settings = settings
         self.writer = writer

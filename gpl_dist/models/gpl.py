@@ -134,7 +134,7 @@ class Conv2x2(nn.Module):
     """``Conv2d(kernel_size=2, stride=1)`` on channels-last input ``(B, H, W, D)`` -> ``(B, H-1, W-1, out)``.
 
     ``proj.weight`` holds the 4 taps (0,0), (0,1), (1,0), (1,1) as consecutive blocks of ``out``
-    rows: a one-hot input's projection is then a lookup (``GridStateEncoder.first_layer``). On
+    rows: a one-hot input's projection is then a lookup (``GridStateEncoder.first_projection``). On
     dense input (the later layers) MKL-DNN's convolution is the fastest form measured.
     """
 
