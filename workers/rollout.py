@@ -197,10 +197,9 @@ class RolloutWorker:
             act_buf = np.zeros((m, steps), dtype=np.int64)
             label_buf = np.full((m, steps), -1, dtype=np.int64)
             reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
-            cur = np.zeros((m,) + d.obs_shape, dtype=d.obs_dtype)
             for j, i in enumerate(active):
                 try:
-                    cur[j] = envs[i].reset(seed=reset_seeds[j])[0]
+                    obs_buf[j, 0] = envs[i].reset(seed=reset_seeds[j])[0]
                     if k == 0:
                         instructions[i] = (self._corrector.full_information(envs[i]) if s.variant == "full_information"
                                            else envs[i].instruction)
@@ -209,7 +208,7 @@ class RolloutWorker:
             with torch.inference_mode():
                 z = self.model.encode_conditioning(self._conditioning([instructions[i] for i in active],
                                                                       [histories[i] for i in active], k))
-            infos = self._run_attempt(task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, cur,
+            infos = self._run_attempt(task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf,
                                       action_rng, failed)
             for j, i in enumerate(active):
                 if failed[i]:
@@ -239,8 +238,8 @@ class RolloutWorker:
                 solved[i] = success
         return [a for per_task in attempts_out for a in per_task]
 
-    def _run_attempt(self, task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, first_obs,
-                     action_rng, failed) -> list[dict]:
+    def _run_attempt(self, task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, action_rng,
+                     failed) -> list[dict]:
         """Step the ``active`` tasks' envs in lockstep for one attempt; fills the buffers in place.
 
         The hot loop of collection: one batched policy forward per step, then per env one expert
@@ -253,8 +252,7 @@ class RolloutWorker:
         active_envs = [envs[i] for i in active]
         alive = [not failed[i] for i in active]
         label = s.label_states
-        obs_buf[:, 0] = first_obs
-        last_obs = list(first_obs)
+        last_obs = list(obs_buf[:, 0])  # the reset observations, written there by the caller
         infos: list[dict] = [{}] * m
         labels = [-1] * m
         for t in range(steps):
