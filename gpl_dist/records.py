@@ -42,6 +42,8 @@ class Attempt:
         observations: ``(T, *O)`` every state the policy acted in, in order.
         actions: int64 ``(T,)`` the action the policy executed in each state.
         expert_actions: int64 ``(T,)`` the expert's label for each state.
+        expert_probs: float32 ``(T, num_actions)`` the expert's action distribution in each state
+            (the learner's target), or None: one-hot of ``expert_actions`` (also when unlabelled).
         completion: the domain's completion metric at the end of the attempt, in [0, 1].
         success: whether the task was solved during the attempt.
         correction: text of the correction given after this attempt; ``""`` when none was given
@@ -67,6 +69,7 @@ class Attempt:
     correction_ids: np.ndarray
     seed: int
     policy_version: int
+    expert_probs: np.ndarray | None = None
 
     @property
     def length(self) -> int:
@@ -80,6 +83,8 @@ class Attempt:
                 f"attempt of task {self.task_id}: observations, actions and expert_actions disagree "
                 f"on length ({n}, {self.actions.shape}, {self.expert_actions.shape})"
             )
+        if self.expert_probs is not None and (self.expert_probs.ndim != 2 or self.expert_probs.shape[0] != n):
+            raise ValueError(f"attempt of task {self.task_id}: expert_probs {self.expert_probs.shape} for {n} states")
 
 
 @dataclass(frozen=True)

@@ -84,6 +84,12 @@ class Expert(Protocol):
         """Optimal next action for the env's current state (``env`` wrapped or unwrapped)."""
         ...
 
+    def label(self, env: Any) -> tuple[int, np.ndarray]:
+        """``(act(env), probs)``: the action and a float32 ``(num_actions,)`` distribution over the
+        actions the expert holds equally good (one-hot for an expert without ties). The learner
+        fits ``probs`` (KL, as the paper's code fit its experts' action distributions)."""
+        ...
+
 
 @runtime_checkable
 class CorrectionOracle(Protocol):

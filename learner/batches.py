@@ -22,6 +22,8 @@ class TensorView:
     Attributes:
         observations: ``(N, *O)`` states.
         expert_actions: int64 ``(N,)`` labels.
+        expert_probs: float32 ``(N, A)`` the expert's action distributions, the training target;
+            None when every one is one-hot (then ``expert_actions`` says the same, more cheaply).
         attempt_rows: int64 ``(N,)`` each state's attempt row.
         instruction_ids: int64 ``(A, L)``.
         correction_ids: int64 ``(A, L)``.
@@ -36,18 +38,26 @@ class TensorView:
     correction_ids: torch.Tensor
     context_rows: torch.Tensor
     trajectories: torch.Tensor
+    expert_probs: torch.Tensor | None = None
 
     @classmethod
     def from_view(cls, view) -> "TensorView":
         # np.array(copy) only when the loader handed out read-only memory
         t = lambda a: torch.from_numpy(a if a.flags.writeable and a.flags.c_contiguous else np.array(a))  # noqa: E731
+        probs = getattr(view, "expert_probs", None)
+        if probs is not None and bool((probs.max(axis=1) == 1.0).all()):
+            probs = None
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
-                   t(view.trajectories))
+                   t(view.trajectories), None if probs is None else t(probs))
 
     @property
     def num_states(self) -> int:
         return int(self.expert_actions.shape[0])
+
+    def targets(self, idx: torch.Tensor) -> torch.Tensor:
+        """The training target of states ``idx``: ``(B, A)`` probabilities, or ``(B,)`` actions."""
+        return self.expert_actions[idx] if self.expert_probs is None else self.expert_probs[idx]
 
     def batch(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor]:
         """``(observations, labels, conditioning, attempt_rows_in_conditioning)`` of states ``idx``."""

@@ -1,8 +1,9 @@
 """The central learner: supervised training on expert labels over the committed buffer view.
 
 Each round trains ``num_epochs_per_round`` epochs over the whole view (the paper's "five epochs
-over the data buffer"), minimising the cross-entropy between the policy and the expert's action
-with Adam. The view sits in memory for all epochs: the disk is read once per round.
+over the data buffer"), minimising with Adam the cross-entropy from the expert's action
+distribution to the policy's (KL up to a constant, as the paper's code trained toward its
+experts' distributions; with one-hot labels, the plain cross-entropy to the expert's action). The view sits in memory for all epochs: the disk is read once per round.
 
 Shuffling keeps ``states_per_chunk`` states of one attempt together: every state is still seen
 exactly once per epoch in random order, but a batch of 512 states then spans about 32 attempts
@@ -39,7 +40,7 @@ class RoundStats:
     """What one round of training did.
 
     Attributes:
-        loss: mean cross-entropy over the last epoch.
+        loss: mean cross-entropy to the expert's distribution over the last epoch.
         accuracy: fraction of states whose argmax action equals the expert's, last epoch.
         num_states: states in the view.
         num_steps: gradient steps taken.
@@ -124,7 +125,7 @@ class Learner:
         dev = self.device
         logits = self.model(obs.to(dev), cond.to(dev), rows.to(dev))
         labels = labels.to(dev)
-        loss = nn.functional.cross_entropy(logits, labels)
+        loss = nn.functional.cross_entropy(logits, tv.targets(idx).to(dev))
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()

@@ -30,7 +30,9 @@ class TrainingView:
     """Contiguous in-memory arrays of the newest labelled states and the attempts they need.
 
     Per tuple (``N`` rows, newest ``capacity_tuples`` at most, whole attempts only):
-        observations ``(N, *O)``, expert_actions int64 ``(N,)``, actions int64 ``(N,)`` (executed),
+        observations ``(N, *O)``, expert_actions int64 ``(N,)``, expert_probs float32 ``(N, A)``
+        (the expert's action distributions; None when every stored label is one-hot by
+        omission, as in schema-1 shards), actions int64 ``(N,)`` (executed),
         timesteps int64 ``(N,)``, attempt_rows int64 ``(N,)`` (row into the per-attempt arrays).
     Per attempt (``A`` rows: every attempt with tuples in the view, plus every earlier attempt a kept
     attempt is conditioned on, even when its own tuples fell out; ordered by ``attempt_keys``):
@@ -46,6 +48,7 @@ class TrainingView:
 
     observations: np.ndarray
     expert_actions: np.ndarray
+    expert_probs: np.ndarray | None
     actions: np.ndarray
     timesteps: np.ndarray
     attempt_rows: np.ndarray
@@ -104,9 +107,33 @@ def read_verified(loc: Location, f: ShardFile) -> bytes:
     return data
 
 
-def read_shard_table(loc: Location, shard: ShardRecord, role: str, columns: Sequence[str] | None = None) -> pa.Table:
+def read_shard_table(loc: Location, shard: ShardRecord, role: str, columns: Sequence[str] | None = None,
+                     optional: Sequence[str] = ()) -> pa.Table:
+    """The shard's ``role`` table; ``optional`` columns are read when the shard has them (older
+    schema versions lack some)."""
     (f,) = shard.files_of(role)
-    return pq.read_table(pa.BufferReader(read_verified(loc, f)), columns=list(columns) if columns else None)
+    source = pa.BufferReader(read_verified(loc, f))
+    if optional:
+        names = set(pq.read_schema(source).names)
+        columns = list(columns or []) + [c for c in optional if c in names]
+    return pq.read_table(source, columns=list(columns) if columns else None)
+
+
+def _probs_rows(col: pa.ChunkedArray | None) -> np.ndarray | None:
+    """float32 ``(m, A)`` from an ``expert_probs`` column; null rows are NaN; None when all null."""
+    if col is None or col.null_count == len(col):
+        return None
+    arr = col.combine_chunks()
+    valid = ~arr.is_null().to_numpy(zero_copy_only=False)
+    offsets = arr.offsets.to_numpy()
+    widths = np.diff(offsets)[valid]
+    width = int(widths[0])
+    if not (widths == width).all():
+        raise BufferIntegrityError(f"expert_probs lists have different lengths ({widths.min()}..{widths.max()})")
+    values = arr.values.to_numpy(zero_copy_only=False)
+    out = np.full((len(arr), width), np.nan, np.float32)
+    out[valid] = values[offsets[:-1][valid, None] + np.arange(width)]
+    return out
 
 
 def open_shard_obs(loc: Location, shard: ShardRecord) -> zarr.Array:
@@ -135,6 +162,22 @@ _ATTEMPT_COLUMNS = [
     "attempt_key", "round", "unit", "task_id", "attempt_index", "instruction_ids", "correction_ids",
     "context_keys", "completion", "success", "length", "obs_start",
 ]
+
+
+def _assemble_probs(chunks: list[tuple[int, np.ndarray | None]], expert_actions: np.ndarray) -> np.ndarray | None:
+    """One ``(N, A)`` array from per-shard rows; rows a shard did not store become one-hot."""
+    width = next((c.shape[1] for _, c in chunks if c is not None), None)
+    if width is None:
+        return None
+    out = np.zeros((len(expert_actions), width), np.float32)
+    for pos, c in chunks:
+        if c is not None:
+            out[pos:pos + len(c)] = c
+    missing = np.isnan(out).any(1) | ~(out.any(1))
+    rows = np.flatnonzero(missing)
+    out[rows] = 0.0
+    out[rows, expert_actions[rows]] = 1.0
+    return out
 
 
 class BufferReader:
@@ -265,6 +308,7 @@ class BufferReader:
         rounds_all = att.column("round").to_numpy()
         pos = 0  # next tuple row
         off = 0
+        probs_chunks: list[tuple[int, np.ndarray | None]] = []
         for m, t in zip(manifests, tables):
             shards = {s.unit_index: s for s in m.shards}
             rows = np.arange(off, off + t.num_rows)
@@ -285,13 +329,15 @@ class BufferReader:
                     m_rows = len(take)
                     contiguous = m_rows == hi - lo
                     observations[pos : pos + m_rows] = z[lo:hi] if contiguous else z[lo:hi][take]
-                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"]).slice(lo, hi - lo)
+                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"],
+                                           optional=["expert_probs"]).slice(lo, hi - lo)
                     if not contiguous:
                         tup = tup.take(pa.array(take))
                     if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(keys[win], lengths[new_row[win]])):
                         raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
                     expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
                     actions[pos : pos + m_rows] = tup.column("action").to_numpy()
+                    probs_chunks.append((pos, _probs_rows(tup.column("expert_probs") if "expert_probs" in tup.column_names else None)))
                     for i in win:
                         j = new_row[i]
                         s = tuple_start[j]
@@ -308,12 +354,14 @@ class BufferReader:
                         g += t_len[j]
             off += t.num_rows
         assert pos == n
+        expert_probs = _assemble_probs(probs_chunks, expert_actions)
 
         inst = _fixed_lists(att.column("instruction_ids").take(pa.array(sel)), "instruction_ids")
         corr = _fixed_lists(att.column("correction_ids").take(pa.array(sel)), "correction_ids")
         return TrainingView(
             observations=observations,
             expert_actions=expert_actions,
+            expert_probs=expert_probs,
             actions=actions,
             timesteps=timesteps,
             attempt_rows=attempt_rows,
@@ -339,7 +387,7 @@ class BufferReader:
 def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, rounds: tuple[int, ...]) -> TrainingView:
     z = lambda *s, dt=np.int64: np.zeros(s, dt)  # noqa: E731
     return TrainingView(
-        observations=np.zeros((0, *obs_shape), dtype), expert_actions=z(0), actions=z(0), timesteps=z(0),
+        observations=np.zeros((0, *obs_shape), dtype), expert_actions=z(0), expert_probs=None, actions=z(0), timesteps=z(0),
         attempt_rows=z(0), attempt_keys=z(0), round_index=z(0), unit_index=z(0), task_id=z(0),
         attempt_index=z(0), lengths=z(0), instruction_ids=z(0, 0), correction_ids=z(0, 0),
         completion=z(0, dt=np.float32), success=z(0, dt=bool), in_window=z(0, dt=bool),

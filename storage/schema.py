@@ -16,7 +16,8 @@ import pyarrow as pa
 from gpl_dist.records import Attempt, WorkUnit
 from storage.layout import attempt_key, committed_path
 
-SCHEMA_VERSION = 1
+# 2: tuples carry expert_probs (a version-1 shard reads as one-hot labels)
+SCHEMA_VERSION = 2
 
 ATTEMPTS_SCHEMA = pa.schema(
     [
@@ -57,6 +58,8 @@ TUPLES_SCHEMA = pa.schema(
         pa.field("expert_action", pa.int64(), nullable=False),
         pa.field("action", pa.int64(), nullable=False),
         pa.field("obs_row", pa.int64(), nullable=False),
+        # the expert's action distribution (the learner's target); null: one-hot of expert_action
+        pa.field("expert_probs", pa.list_(pa.float32())),
     ],
     metadata={"gpl_dist.table": "tuples", "gpl_dist.schema_version": str(SCHEMA_VERSION)},
 )
@@ -92,6 +95,28 @@ def context_keys_of(unit: WorkUnit, attempts: Sequence[Attempt]) -> list[list[in
         out.append(list(chain))
         chain.append(key)
     return out
+
+
+def _probs_column(attempts: Sequence[Attempt], n: int) -> pa.Array:
+    """``expert_probs`` as a list column; attempts without probabilities get null rows."""
+    if not any(a.expert_probs is not None for a in attempts):
+        return pa.nulls(n, pa.list_(pa.float32()))
+    width = next(a.expert_probs.shape[1] for a in attempts if a.expert_probs is not None)
+    values = np.zeros((n, width), np.float32)
+    valid = np.zeros(n, bool)
+    pos = 0
+    for a in attempts:
+        if a.expert_probs is not None:
+            if a.expert_probs.shape[1] != width:
+                raise ValueError(f"task {a.task_id}: expert_probs over {a.expert_probs.shape[1]} actions, unit has {width}")
+            values[pos:pos + a.length] = a.expert_probs
+            valid[pos:pos + a.length] = True
+        pos += a.length
+    offsets = pa.array(np.arange(0, n * width + 1, width, dtype=np.int32))
+    lists = pa.ListArray.from_arrays(offsets, pa.array(values.reshape(-1)))
+    if valid.all():
+        return lists
+    return pa.ListArray.from_arrays(offsets, pa.array(values.reshape(-1)), mask=pa.array(~valid))
 
 
 def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], worker_id: str) -> UnitTables:
@@ -151,6 +176,7 @@ def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], 
             pa.array(np.concatenate([a.expert_actions for a in attempts]).astype(np.int64) if n_att else np.zeros(0, np.int64)),
             pa.array(np.concatenate([a.actions for a in attempts]).astype(np.int64) if n_att else np.zeros(0, np.int64)),
             pa.array(np.arange(n, dtype=np.int64)),
+            _probs_column(attempts, n),
         ],
         schema=TUPLES_SCHEMA,
     )

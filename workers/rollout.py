@@ -196,6 +196,7 @@ class RolloutWorker:
             obs_buf = np.zeros((m, steps) + d.obs_shape, dtype=d.obs_dtype)
             act_buf = np.zeros((m, steps), dtype=np.int64)
             label_buf = np.full((m, steps), -1, dtype=np.int64)
+            probs_buf = np.zeros((m, steps, d.num_actions), dtype=np.float32) if expert is not None else None
             reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
             for j, i in enumerate(active):
                 try:
@@ -209,7 +210,7 @@ class RolloutWorker:
                 z = self.model.encode_conditioning(self._conditioning([instructions[i] for i in active],
                                                                       [histories[i] for i in active], k))
             infos = self._run_attempt(task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf,
-                                      action_rng, failed)
+                                      probs_buf, action_rng, failed)
             for j, i in enumerate(active):
                 if failed[i]:
                     continue
@@ -233,13 +234,14 @@ class RolloutWorker:
                     completion=float(info.get("completion", 0.0)), success=success,
                     correction=corr_text, correction_kind=corr_kind, correction_ids=corr_ids,
                     seed=reset_seeds[j], policy_version=self.policy_version,
+                    expert_probs=None if probs_buf is None else probs_buf[j],
                 ))
                 histories[i].append((obs_buf[j, ::stride].copy(), corr_ids))
                 solved[i] = success
         return [a for per_task in attempts_out for a in per_task]
 
-    def _run_attempt(self, task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, action_rng,
-                     failed) -> list[dict]:
+    def _run_attempt(self, task_ids, active, envs, expert, z, obs_buf, act_buf, label_buf, probs_buf,
+                     action_rng, failed) -> list[dict]:
         """Step the ``active`` tasks' envs in lockstep for one attempt; fills the buffers in place.
 
         The hot loop of collection: one batched policy forward per step, then per env one expert
@@ -255,6 +257,8 @@ class RolloutWorker:
         last_obs = list(obs_buf[:, 0])  # the reset observations, written there by the caller
         infos: list[dict] = [{}] * m
         labels = [-1] * m
+        zero_probs = np.zeros(self.domain.num_actions, dtype=np.float32)
+        probs = [zero_probs] * m
         for t in range(steps):
             with torch.inference_mode():
                 logits = self.model.action_logits(torch.from_numpy(obs_buf[:, t]), z)
@@ -266,14 +270,15 @@ class RolloutWorker:
                 env = active_envs[j]
                 try:
                     if label:
-                        labels[j] = expert.act(env)
+                        labels[j], probs[j] = expert.label(env)
                     last_obs[j], _, _, _, infos[j] = env.step(a)
                 except Exception as err:  # noqa: BLE001 - one broken task must not end the unit
                     alive[j] = False
-                    labels[j] = -1
+                    labels[j], probs[j] = -1, zero_probs
                     self._fail(task_ids[active[j]], "step/expert", err, failed, active[j])
             if label:
                 label_buf[:, t] = labels
+                np.stack(probs, out=probs_buf[:, t])
             if t + 1 < steps:
                 np.stack(last_obs, out=obs_buf[:, t + 1])
         return infos

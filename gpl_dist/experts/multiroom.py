@@ -126,6 +126,13 @@ def _forward_costs(start: int, mask: int) -> tuple[list[int], list[int]]:
 class MultiRoomExpert:
     """Optimal multi-room expert: ``act(env) -> int`` for the env's current state."""
 
+    def label(self, env: Any) -> tuple[int, np.ndarray]:
+        """The action and its one-hot distribution (shortest paths are followed deterministically)."""
+        a = self.act(env)
+        probs = np.zeros(6, dtype=np.float32)
+        probs[a] = 1.0
+        return a, probs
+
     def act(self, env: Any) -> int:
         u = getattr(env, "unwrapped", env)
         carrying = u._carrying
