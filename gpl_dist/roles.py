@@ -78,7 +78,13 @@ class TaskEnv(Protocol):
 
 @runtime_checkable
 class Expert(Protocol):
-    """Near-optimal policy with privileged access to the env's full state."""
+    """Near-optimal policy with privileged access to the env's full state.
+
+    ``soft_labels``: whether ``label`` can return anything but the one-hot of ``act`` (when
+    False, workers call ``act`` alone and store no distributions: they read back as one-hot).
+    """
+
+    soft_labels: bool
 
     def act(self, env: Any) -> int:
         """Optimal next action for the env's current state (``env`` wrapped or unwrapped)."""

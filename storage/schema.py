@@ -98,25 +98,29 @@ def context_keys_of(unit: WorkUnit, attempts: Sequence[Attempt]) -> list[list[in
 
 
 def _probs_column(attempts: Sequence[Attempt], n: int) -> pa.Array:
-    """``expert_probs`` as a list column; attempts without probabilities get null rows."""
-    if not any(a.expert_probs is not None for a in attempts):
+    """``expert_probs`` as a list column. A row that is one-hot at ``expert_action`` (all of the
+    multi-room expert's, most of the relocation expert's) or unlabelled is stored as null: the
+    reader gives it back as one-hot, and the column costs bytes only where labels are soft."""
+    width = next((a.expert_probs.shape[1] for a in attempts if a.expert_probs is not None), None)
+    if width is None:
         return pa.nulls(n, pa.list_(pa.float32()))
-    width = next(a.expert_probs.shape[1] for a in attempts if a.expert_probs is not None)
     values = np.zeros((n, width), np.float32)
-    valid = np.zeros(n, bool)
+    soft = np.zeros(n, bool)
     pos = 0
     for a in attempts:
         if a.expert_probs is not None:
             if a.expert_probs.shape[1] != width:
                 raise ValueError(f"task {a.task_id}: expert_probs over {a.expert_probs.shape[1]} actions, unit has {width}")
-            values[pos:pos + a.length] = a.expert_probs
-            valid[pos:pos + a.length] = True
+            p = a.expert_probs
+            values[pos:pos + a.length] = p
+            labelled = a.expert_actions >= 0
+            one_hot = np.zeros(a.length, bool)
+            one_hot[labelled] = p[labelled, a.expert_actions[labelled]] == 1.0
+            soft[pos:pos + a.length] = labelled & ~one_hot
         pos += a.length
-    offsets = pa.array(np.arange(0, n * width + 1, width, dtype=np.int32))
-    lists = pa.ListArray.from_arrays(offsets, pa.array(values.reshape(-1)))
-    if valid.all():
-        return lists
-    return pa.ListArray.from_arrays(offsets, pa.array(values.reshape(-1)), mask=pa.array(~valid))
+    offsets = np.zeros(n + 1, np.int32)
+    np.cumsum(soft * width, out=offsets[1:])
+    return pa.ListArray.from_arrays(pa.array(offsets), pa.array(values[soft].reshape(-1)), mask=pa.array(~soft))
 
 
 def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], worker_id: str) -> UnitTables:

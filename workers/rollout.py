@@ -196,7 +196,8 @@ class RolloutWorker:
             obs_buf = np.zeros((m, steps) + d.obs_shape, dtype=d.obs_dtype)
             act_buf = np.zeros((m, steps), dtype=np.int64)
             label_buf = np.full((m, steps), -1, dtype=np.int64)
-            probs_buf = np.zeros((m, steps, d.num_actions), dtype=np.float32) if expert is not None else None
+            soft = expert is not None and expert.soft_labels
+            probs_buf = np.zeros((m, steps, d.num_actions), dtype=np.float32) if soft else None
             reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
             for j, i in enumerate(active):
                 try:
@@ -254,6 +255,7 @@ class RolloutWorker:
         active_envs = [envs[i] for i in active]
         alive = [not failed[i] for i in active]
         label = s.label_states
+        soft = probs_buf is not None
         last_obs = list(obs_buf[:, 0])  # the reset observations, written there by the caller
         infos: list[dict] = [{}] * m
         labels = [-1] * m
@@ -269,8 +271,10 @@ class RolloutWorker:
                     continue
                 env = active_envs[j]
                 try:
-                    if label:
+                    if soft:
                         labels[j], probs[j] = expert.label(env)
+                    elif label:
+                        labels[j] = expert.act(env)
                     last_obs[j], _, _, _, infos[j] = env.step(a)
                 except Exception as err:  # noqa: BLE001 - one broken task must not end the unit
                     alive[j] = False
@@ -278,7 +282,8 @@ class RolloutWorker:
                     self._fail(task_ids[active[j]], "step/expert", err, failed, active[j])
             if label:
                 label_buf[:, t] = labels
-                np.stack(probs, out=probs_buf[:, t])
+                if soft:
+                    np.stack(probs, out=probs_buf[:, t])
             if t + 1 < steps:
                 np.stack(last_obs, out=obs_buf[:, t + 1])
         return infos

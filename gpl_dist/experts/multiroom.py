@@ -126,6 +126,8 @@ def _forward_costs(start: int, mask: int) -> tuple[list[int], list[int]]:
 class MultiRoomExpert:
     """Optimal multi-room expert: ``act(env) -> int`` for the env's current state."""
 
+    soft_labels = False
+
     def label(self, env: Any) -> tuple[int, np.ndarray]:
         """The action and its one-hot distribution (shortest paths are followed deterministically)."""
         a = self.act(env)

@@ -239,6 +239,8 @@ def gripper_field(goal: tuple[float, float], blocks: np.ndarray) -> LazyField:
 class RelocationExpert:
     """Cradle-pushing expert (see the module docstring); ``act(env)`` for wrapped or bare envs."""
 
+    soft_labels = True
+
     def __init__(self, cache_size: int = 4096):
         self._block_plans: dict[tuple, tuple] = {}
         self._grip_plans: dict[tuple, LazyField] = {}
