@@ -45,6 +45,10 @@ class Sizes:
     correction_mlp: tuple[int, ...]
     instruction_mlp: tuple[int, ...]
     pair_mlp: tuple[int, ...]
+    # whether the pair MLP's last layer has a ReLU. Relocation: no. With it, all 32 output units
+    # of that layer died in round 1 of one run (relocation's early corrections carry little
+    # signal) and a dead layer never recovers: the policy then ignored every correction.
+    pair_final_relu: bool
     policy_mlp: tuple[int, ...]
 
 
@@ -53,13 +57,13 @@ SIZES = {
         state_channels=(8, 8), state_mlp=(32, 32),
         traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),
         text_conv=4, correction_mlp=(16, 4), instruction_mlp=(16, 32),
-        pair_mlp=(32, 32), policy_mlp=(64, 64),
+        pair_mlp=(32, 32), pair_final_relu=True, policy_mlp=(64, 64),
     ),
     "relocation": Sizes(
         state_channels=(), state_mlp=(),
         traj_state_channels=(), traj_state_mlp=(), traj_conv=8, traj_mlp=(16, 8),
         text_conv=4, correction_mlp=(16, 16), instruction_mlp=(16, 16),
-        pair_mlp=(32, 32), policy_mlp=(256, 256, 256),
+        pair_mlp=(32, 32), pair_final_relu=False, policy_mlp=(256, 256, 256),
     ),
 }
 
@@ -360,7 +364,8 @@ class GPLPolicy(nn.Module):
         self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
         self.correction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp)
         self.trajectory = TrajectoryEncoder(domain, sizes)
-        self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim)
+        self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
+                                  final_activation=sizes.pair_final_relu)
         if len(domain.obs_shape) == 3:
             self.state = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels, sizes.state_mlp)
         else:
