@@ -199,7 +199,8 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
             if bar is not None:
                 bar.close()
             metrics.update(buffer_tuples=stats.num_states, loss=stats.loss, accuracy=stats.accuracy,
-                           train_seconds=stats.seconds, train_steps=stats.num_steps)
+                           train_seconds=stats.seconds, train_steps=stats.num_steps,
+                           correction_spread=stats.correction_spread)
             history.append(metrics)
             save_checkpoint(ckpt_dir, Checkpoint(
                 round_index=r, policy_version=version + 1, model_state=learner.model.state_dict(),
@@ -225,8 +226,14 @@ def _tensorboard(run_dir: Path):
 def format_round(m: dict) -> str:
     curve = " ".join(f"c{k}={v:.3f}" for k, v in enumerate(m["completion_by_corrections"]))
     collected = "resumed" if m.get("collected_tuples") is None else f"{m['collected_tuples']} tuples"
-    return (f"round {m['round']}: {collected} in {m['collection_seconds']:.1f}s, buffer {m['buffer_tuples']}, "
-            f"train {m['train_seconds']:.1f}s loss {m['loss']:.4f} acc {m['accuracy']:.3f} | train tasks {curve}")
+    spread = m.get("correction_spread")
+    line = (f"round {m['round']}: {collected} in {m['collection_seconds']:.1f}s, buffer {m['buffer_tuples']}, "
+            f"train {m['train_seconds']:.1f}s loss {m['loss']:.4f} acc {m['accuracy']:.3f}"
+            + ("" if spread is None else f" corr-spread {spread:.3f}") + f" | train tasks {curve}")
+    if spread is not None and spread < 1e-6:
+        line += ("\nwarning: the correction module's output no longer varies between attempts (dead units);"
+                 " the policy cannot use corrections")
+    return line
 
 
 def _log_round(run_dir: Path, tb, m: dict) -> None:
@@ -237,6 +244,8 @@ def _log_round(run_dir: Path, tb, m: dict) -> None:
         r = m["round"]
         tb.add_scalar("train/loss", m["loss"], r)
         tb.add_scalar("train/accuracy", m["accuracy"], r)
+        if m.get("correction_spread") is not None:
+            tb.add_scalar("train/correction_spread", m["correction_spread"], r)
         tb.add_scalar("collect/seconds", m["collection_seconds"], r)
         tb.add_scalar("train/seconds", m["train_seconds"], r)
         for k, v in enumerate(m["completion_by_corrections"]):

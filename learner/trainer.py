@@ -3,18 +3,23 @@
 Each round trains ``num_epochs_per_round`` epochs over the whole view (the paper's "five epochs
 over the data buffer"), minimising with Adam the cross-entropy from the expert's action
 distribution to the policy's (KL up to a constant, as the paper's code trained toward its
-experts' distributions; with one-hot labels, the plain cross-entropy to the expert's action). The view sits in memory for all epochs: the disk is read once per round.
+experts' distributions; with one-hot labels, the plain cross-entropy to the expert's action).
+The view sits in memory for all epochs: the disk is read once per round.
 
 Shuffling keeps ``states_per_chunk`` states of one attempt together: every state is still seen
 exactly once per epoch in random order, but a batch of 512 states then spans about 32 attempts
 instead of about 500, and the correction module (whose input is the attempt's history, not the
 state) runs once per attempt in the batch. That is most of the cost of a step at this model size.
+
+Adam runs over one flat tensor holding every parameter (``flatten_parameters``). A tensor that
+gets no gradient in a step (the correction module, when a batch holds only first attempts) then
+takes a zero gradient, as in frameworks with dense gradients, where per-tensor Adam would skip it.
 """
 
 from __future__ import annotations
 
-import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -45,6 +50,10 @@ class RoundStats:
         num_states: states in the view.
         num_steps: gradient steps taken.
         seconds: wall time of the round's training.
+        correction_spread: mean distance of an attempt's correction-module output from their mean,
+            over the attempts with corrections in the round's last batch; 0 means the module's
+            output no longer depends on the corrections (dead units) and the policy cannot use
+            them. None when the batch had fewer than two such attempts or the variant has none.
     """
 
     loss: float
@@ -52,6 +61,7 @@ class RoundStats:
     num_states: int
     num_steps: int
     seconds: float
+    correction_spread: float | None = None
 
 
 def flatten_parameters(model: nn.Module) -> tuple[nn.Parameter, torch.Tensor]:
@@ -111,16 +121,18 @@ class Learner:
 
     def load_optimizer_state(self, state: dict) -> None:
         """Adam's moments from a checkpoint (also one written with one entry per parameter tensor,
-        before the parameters were flattened), keeping this learner's fused setting."""
+        before the parameters were flattened: exact when every tensor has taken the same number
+        of steps, as they do in gpl-dist's rounds), keeping this learner's fused setting."""
         params = state["param_groups"][0]["params"]
         if len(params) > 1:  # per-tensor moments, in model.parameters() order: concatenate them
             per = [state["state"].get(i) for i in params]
-            if all(x is not None for x in per):
-                flat = {key: torch.cat([x[key].reshape(-1) for x in per]) for key in ("exp_avg", "exp_avg_sq")}
-                flat["step"] = per[0]["step"]
-                state = {"state": {0: flat}, "param_groups": [{**state["param_groups"][0], "params": [0]}]}
-            else:  # a tensor that never got a gradient: start the moments afresh
-                state = {"state": {}, "param_groups": [{**state["param_groups"][0], "params": [0]}]}
+            sizes = [p.numel() for p in self.model.parameters() if p.requires_grad]
+            zeros = lambda n: torch.zeros(n, device=self.device)  # noqa: E731 - a tensor that never had a gradient
+            flat = {key: torch.cat([x[key].reshape(-1) if x is not None else zeros(n) for x, n in zip(per, sizes)])
+                    for key in ("exp_avg", "exp_avg_sq")}
+            flat["step"] = max((x["step"] for x in per if x is not None), default=torch.tensor(0.0)).clone()
+            state = {"state": {0: flat} if any(x is not None for x in per) else {},
+                     "param_groups": [{**state["param_groups"][0], "params": [0]}]}
         self.optimizer.load_state_dict(state)
         for group in self.optimizer.param_groups:
             group["fused"], group["foreach"] = True, None
@@ -135,31 +147,56 @@ class Learner:
         start = time.perf_counter()
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0
         self.model.train()
-        for epoch in range(self.cfg.num_epochs_per_round):
-            perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
-            loss_sum, correct, seen = 0.0, 0, 0
-            for b in range(math.ceil(n / self.cfg.batch_size)):
-                idx = perm[b * self.cfg.batch_size:(b + 1) * self.cfg.batch_size]
-                if idx.numel() < 2 and n >= 2:
-                    continue  # BatchNorm needs two samples
-                loss, hits = self.step(tv, idx)
-                loss_sum += loss * idx.numel()
-                correct += hits
-                seen += idx.numel()
-                steps += 1
-            if on_epoch is not None and seen:
-                on_epoch(epoch, loss_sum / seen, correct / seen)
+        last_conditioning = None
+        # the next batch is gathered on a helper thread while this one trains: torch's indexing
+        # releases the GIL, and the step's small ops leave the second core mostly idle
+        with ThreadPoolExecutor(1, thread_name_prefix="gpl-batches") as pool:
+            for epoch in range(self.cfg.num_epochs_per_round):
+                perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
+                chunks = [idx for idx in perm.split(self.cfg.batch_size) if idx.numel() >= 2 or n < 2]  # BatchNorm needs two
+                loss_sum, correct, seen = 0.0, 0, 0
+                pending = pool.submit(self._gather, tv, chunks[0]) if chunks else None
+                for b, idx in enumerate(chunks):
+                    batch = pending.result()
+                    if b + 1 < len(chunks):
+                        pending = pool.submit(self._gather, tv, chunks[b + 1])
+                    loss, hits = self._train_on(*batch)
+                    last_conditioning = batch[2]
+                    loss_sum += loss * idx.numel()
+                    correct += hits
+                    seen += idx.numel()
+                    steps += 1
+                if on_epoch is not None and seen:
+                    on_epoch(epoch, loss_sum / seen, correct / seen)
         self.model.eval()
+        spread = None if last_conditioning is None else self.correction_spread(last_conditioning)
         return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,
-                          num_steps=steps, seconds=time.perf_counter() - start)
+                          num_steps=steps, seconds=time.perf_counter() - start, correction_spread=spread)
+
+    def correction_spread(self, cond) -> float | None:
+        """See ``RoundStats.correction_spread``."""
+        if not self.model.uses_corrections:
+            return None
+        with torch.no_grad():
+            z = self.model.encode_conditioning(cond)[:, self.model.instruction.out_dim:]
+        z = z[(cond.slots >= 0).any(1)]
+        if z.shape[0] < 2:
+            return None
+        return float((z - z.mean(0)).norm(dim=1).mean())
 
     def step(self, tv: TensorView, idx: torch.Tensor) -> tuple[float, int]:
         """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""
+        return self._train_on(*self._gather(tv, idx))
+
+    def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple:
+        """The batch of states ``idx``, on the learner's device."""
         obs, labels, cond, rows = tv.batch(idx)
         dev = self.device
-        logits = self.model(obs.to(dev), cond.to(dev), rows.to(dev))
-        labels = labels.to(dev)
-        loss = nn.functional.cross_entropy(logits, tv.targets(idx).to(dev))
+        return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev)
+
+    def _train_on(self, obs, labels, cond, rows, targets) -> tuple[float, int]:
+        logits = self.model(obs, cond, rows)
+        loss = nn.functional.cross_entropy(logits, targets)
         self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
         loss.backward()
         self.optimizer.step()

@@ -1,0 +1,106 @@
+"""The learner's optimiser over flattened parameters, its batch prefetching and its determinism."""
+
+import numpy as np
+import torch
+from torch import nn
+
+from gpl_dist.config import TrainingConfig
+from gpl_dist.domains import get_domain
+from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from learner.trainer import Learner
+from storage import BufferReader, ShardWriter, commit_round
+from gpl_dist.records import WorkUnit
+from tests.test_rollout import make_worker
+
+
+def _view(tmp_path, rounds=1):
+    """A buffer of real multi-room attempts (an untrained policy, 3 tasks, 2 corrections)."""
+    root = tmp_path / "run"
+    writer = ShardWriter(root, "r")
+    worker = make_worker("multiroom", num_corrections=2)
+    for r in range(rounds):
+        unit = WorkUnit(round_index=r, unit_index=0, task_ids=(1, 2, 3), split="train", seed=r, policy_version=0)
+        attempts = worker.collect(unit.task_ids, unit.split, seed=unit.seed, round_index=r)
+        commit_round(root, r, [writer.write_unit(unit, attempts, worker_id="w")])
+    return BufferReader(root).load_training_view(trajectory_stride=get_domain("multiroom").trajectory_stride)
+
+
+def _cfg(**kw):
+    return TrainingConfig(**{"num_epochs_per_round": 1, "batch_size": 64, "num_threads": 1, **kw})
+
+
+def test_parameters_are_views_of_one_flat_tensor_and_train(tmp_path):
+    view = _view(tmp_path)
+    learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg())
+    flat = learner.flat_parameters
+    params = list(learner.model.parameters())
+    assert flat.numel() == sum(p.numel() for p in params)
+    for p in params:
+        assert p.untyped_storage().data_ptr() == flat.untyped_storage().data_ptr()
+        assert p.grad.untyped_storage().data_ptr() == learner.flat_grads.untyped_storage().data_ptr()
+    before = state_dict_to_numpy(learner.model)
+    learner.train_round(view)
+    after = state_dict_to_numpy(learner.model)
+    assert all(not np.array_equal(before[k], after[k]) for k in before)  # every tensor was updated
+    # a fresh model loads the trained values (state_dict copies out of the flat storage)
+    fresh = build_model(get_domain("multiroom"))
+    fresh.load_state_dict(learner.model.state_dict())
+    assert all(torch.equal(a, b) for a, b in zip(fresh.state_dict().values(), learner.model.state_dict().values()))
+
+
+def test_flat_adam_continues_a_per_tensor_adam_exactly(tmp_path):
+    """A checkpoint written before the flattening (one Adam state per tensor) resumes the same."""
+    from learner.batches import TensorView
+
+    tv = TensorView.from_view(_view(tmp_path))
+    idx = torch.randperm(tv.num_states, generator=torch.Generator().manual_seed(0))[:64]
+    obs, labels, cond, rows = tv.batch(idx)
+    model = build_model(get_domain("multiroom"), seed=0)
+    old = torch.optim.Adam(model.parameters(), lr=1e-3, fused=True)
+    for _ in range(3):
+        old.zero_grad()
+        nn.functional.cross_entropy(model(obs, cond, rows), labels).backward()
+        old.step()
+    assert len(old.state) == len(list(model.parameters()))  # every tensor has moments to carry over
+    learner = Learner(build_model(get_domain("multiroom")), _cfg())
+    learner.model.load_state_dict(model.state_dict())
+    learner.load_optimizer_state(old.state_dict())
+    old.zero_grad()
+    nn.functional.cross_entropy(model(obs, cond, rows), labels).backward()
+    old.step()
+    learner.step(tv, idx)
+    for a, b in zip(model.parameters(), learner.model.parameters()):
+        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+
+def test_training_is_deterministic_with_the_prefetching_thread(tmp_path):
+    view = _view(tmp_path, rounds=2)
+    runs = []
+    for _ in range(2):
+        learner = Learner(build_model(get_domain("multiroom"), seed=3), _cfg(num_epochs_per_round=2), seed=5)
+        stats = learner.train_round(view)
+        runs.append((stats, state_dict_to_numpy(learner.model)))
+    (s1, w1), (s2, w2) = runs
+    assert s1.loss == s2.loss and s1.num_steps == s2.num_steps == 2 * -(-view.num_tuples // 64)
+    assert all(np.array_equal(w1[k], w2[k]) for k in w1)
+
+
+def test_correction_spread_reports_a_dead_correction_module(tmp_path):
+    from learner.batches import TensorView
+    from learner.driver import format_round
+
+    tv = TensorView.from_view(_view(tmp_path))
+    learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg())
+    cond = tv.batch(torch.arange(tv.num_states))[2]
+    assert learner.correction_spread(cond) > 0  # a live module: attempts' summaries differ
+    with torch.no_grad():  # every unit of the pair MLP's last layer dead (as happened in a relocation run)
+        last = learner.model.pair[-2]
+        last.weight.zero_()
+        last.bias.fill_(-1.0)
+    assert learner.correction_spread(cond) == 0.0
+    line = format_round({"round": 3, "collected_tuples": 10, "collection_seconds": 1.0, "buffer_tuples": 10,
+                         "train_seconds": 1.0, "loss": 1.0, "accuracy": 0.5, "completion_by_corrections": [0.1],
+                         "correction_spread": 0.0})
+    assert "cannot use corrections" in line
+    no_corrections = Learner(build_model(get_domain("multiroom"), "instruction_only", seed=0), _cfg())
+    assert no_corrections.correction_spread(cond) is None
