@@ -19,7 +19,6 @@ takes a zero gradient, as in frameworks with dense gradients, where per-tensor A
 from __future__ import annotations
 
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -148,26 +147,21 @@ class Learner:
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0
         self.model.train()
         last_conditioning = None
-        # the next batch is gathered on a helper thread while this one trains: torch's indexing
-        # releases the GIL, and the step's small ops leave the second core mostly idle
-        with ThreadPoolExecutor(1, thread_name_prefix="gpl-batches") as pool:
-            for epoch in range(self.cfg.num_epochs_per_round):
-                perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
-                chunks = [idx for idx in perm.split(self.cfg.batch_size) if idx.numel() >= 2 or n < 2]  # BatchNorm needs two
-                loss_sum, correct, seen = 0.0, 0, 0
-                pending = pool.submit(self._gather, tv, chunks[0]) if chunks else None
-                for b, idx in enumerate(chunks):
-                    batch = pending.result()
-                    if b + 1 < len(chunks):
-                        pending = pool.submit(self._gather, tv, chunks[b + 1])
-                    loss, hits = self._train_on(*batch)
-                    last_conditioning = batch[2]
-                    loss_sum += loss * idx.numel()
-                    correct += hits
-                    seen += idx.numel()
-                    steps += 1
-                if on_epoch is not None and seen:
-                    on_epoch(epoch, loss_sum / seen, correct / seen)
+        for epoch in range(self.cfg.num_epochs_per_round):
+            perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
+            loss_sum, correct, seen = 0.0, 0, 0
+            for idx in perm.split(self.cfg.batch_size):
+                if idx.numel() < 2 and n >= 2:
+                    continue  # BatchNorm needs two samples
+                batch = self._gather(tv, idx)
+                loss, hits = self._train_on(*batch)
+                last_conditioning = batch[2]
+                loss_sum += loss * idx.numel()
+                correct += hits
+                seen += idx.numel()
+                steps += 1
+            if on_epoch is not None and seen:
+                on_epoch(epoch, loss_sum / seen, correct / seen)
         self.model.eval()
         spread = None if last_conditioning is None else self.correction_spread(last_conditioning)
         return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,

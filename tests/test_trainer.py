@@ -73,7 +73,7 @@ def test_flat_adam_continues_a_per_tensor_adam_exactly(tmp_path):
         torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
 
 
-def test_training_is_deterministic_with_the_prefetching_thread(tmp_path):
+def test_training_is_deterministic(tmp_path):
     view = _view(tmp_path, rounds=2)
     runs = []
     for _ in range(2):
