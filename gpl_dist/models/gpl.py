@@ -105,32 +105,22 @@ def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> t
 
 
 class _ShiftSum(torch.autograd.Function):
-    """Sum of the kernel taps of a stride-1 convolution whose taps were projected separately.
-
-    Input ``(B, H, W, 4, o)`` (2x2 kernel, taps in (0,0), (0,1), (1,0), (1,1) order) -> ``(B, H-1,
-    W-1, o)``, or ``(B, L, 2, o)`` (kernel 2 over a sequence) -> ``(B, L-1, o)``. Written as a
-    function because autograd's backward of four overlapping slices zero-fills a full-size buffer
-    per slice and adds them up; this backward fills one buffer once.
+    """Sum of the 2 taps of a kernel-2, stride-1 convolution over a sequence whose taps were
+    projected separately: ``(B, L, 2, o)`` -> ``(B, L-1, o)``. Written as a function because
+    autograd's backward of two overlapping slices zero-fills a full-size buffer per slice and adds
+    them up; this backward fills one buffer once.
     """
 
     @staticmethod
     def forward(ctx, y: torch.Tensor) -> torch.Tensor:
         ctx.y_shape = y.shape
-        if y.dim() == 4:
-            return y[:, :-1, 0] + y[:, 1:, 1]
-        return y[:, :-1, :-1, 0] + y[:, :-1, 1:, 1] + y[:, 1:, :-1, 2] + y[:, 1:, 1:, 3]
+        return y[:, :-1, 0] + y[:, 1:, 1]
 
     @staticmethod
     def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
         gy = grad.new_zeros(ctx.y_shape)
-        if gy.dim() == 4:
-            gy[:, :-1, 0] = grad
-            gy[:, 1:, 1] = grad
-        else:
-            gy[:, :-1, :-1, 0] = grad
-            gy[:, :-1, 1:, 1] = grad
-            gy[:, 1:, :-1, 2] = grad
-            gy[:, 1:, 1:, 3] = grad
+        gy[:, :-1, 0] = grad
+        gy[:, 1:, 1] = grad
         return gy
 
 
@@ -254,21 +244,18 @@ class GridStateEncoder(nn.Module):
         self.num_inputs = int(sum(categories))
         offsets = [0, *np.cumsum(categories)[:-1].tolist()]
         self.groups = channel_groups(categories)
-        for i, group in enumerate(self.groups):
-            counts = [categories[ch] for ch in group]
-            combos = np.stack(np.meshgrid(*[np.arange(n) for n in counts], indexing="ij"), -1).reshape(-1, len(group))
-            columns = combos + np.array([offsets[ch] for ch in group])  # one-hot column of each channel's code
-            strides = np.cumprod([1, *counts[::-1]])[:-1][::-1].copy()  # row of a combination = codes . strides
-            self.register_buffer(f"group_columns_{i}", torch.from_numpy(columns).long(), persistent=False)
-            self.register_buffer(f"group_strides_{i}", torch.from_numpy(strides).long(), persistent=False)
         # code combination index of each group: obs (.., C) @ row_weights (C, G), plus the rows of
         # the groups before it in group_tables()
         row_weights = np.zeros((c, len(self.groups)), np.float32)
         starts, total = [], 0
-        for g, group in enumerate(self.groups):
-            row_weights[list(group), g] = getattr(self, f"group_strides_{g}").numpy()
+        for i, group in enumerate(self.groups):
+            counts = [categories[ch] for ch in group]
+            combos = np.stack(np.meshgrid(*[np.arange(n) for n in counts], indexing="ij"), -1).reshape(-1, len(group))
+            columns = combos + np.array([offsets[ch] for ch in group])  # one-hot column of each channel's code
+            self.register_buffer(f"group_columns_{i}", torch.from_numpy(columns).long(), persistent=False)
+            row_weights[list(group), i] = np.cumprod([1, *counts[::-1]])[:-1][::-1]  # row = codes . strides
             starts.append(total)
-            total += int(np.prod([categories[ch] for ch in group]))
+            total += len(combos)
         self.register_buffer("row_weights", torch.from_numpy(row_weights), persistent=False)
         self.register_buffer("group_starts", torch.tensor(starts, dtype=torch.long), persistent=False)
         widths = (self.num_inputs, *channels)
