@@ -339,3 +339,22 @@ def test_render():
     colour = np.array(MOVABLE_RGB[env.task.block], dtype=np.uint8)
     assert np.all(img == colour, axis=-1).sum() > 20
     assert RelocationEnv(8).render() is None
+
+
+def test_imitation_benchmark_runs_privileged_dagger():
+    """``benchmarks/relocation_imitation.py`` end to end on 2 tasks: the expert's own figures, then
+    one line per DAgger round with the on-policy KL from round 1 on, and the aggregate growing."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "relocation_imitation.py"
+    out = subprocess.run([sys.executable, str(script), "--rounds", "2", "--tasks", "2", "--test-tasks", "2",
+                          "--epochs", "1"], capture_output=True, text=True, timeout=300, check=True).stdout
+    expert = re.search(r"completion ([0-9.]+) \(its actions\), ([0-9.]+) \(sampled", out)
+    assert expert and float(expert.group(1)) > 0.5 and float(expert.group(2)) > 0.5, out
+    rounds = re.findall(r"round (\d): .*on-policy KL (\S+) \| ([\d,]+) states", out)
+    assert [r[0] for r in rounds] == ["0", "1"], out
+    assert rounds[0][1] == "nan" and float(rounds[1][1]) > 0.0
+    assert int(rounds[1][2].replace(",", "")) == 2 * int(rounds[0][2].replace(",", "")) == 2 * 2 * 350
