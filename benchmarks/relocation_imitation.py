@@ -35,6 +35,9 @@ from gpl_dist.envs.relocation import BLOCK_QPOS, EPISODE_STEPS, SUCCESS_RADIUS, 
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.splits import split_tasks
 
+TEST_SEED = 99_999  # reset seed of test task k: TEST_SEED + k, for the expert and the policy alike
+
+
 def privileged_inputs(task_ids) -> np.ndarray:
     """``(N, 5)`` float32: exact target xy and the goal block one-hot of each task."""
     tasks = [make_task(int(t)) for t in task_ids]
@@ -47,8 +50,9 @@ def build_policy(in_dim: int, width: int) -> nn.Module:
                          nn.ReLU(), nn.Linear(width, width), nn.ReLU(), nn.Linear(width, 4))
 
 
-def rollout(policy: nn.Module | None, task_ids, seed: int, label: bool):
-    """Roll out ``policy`` (the expert itself when None: sampled from its labels) on every task.
+def rollout(policy: nn.Module | None, task_ids, seed: int, label: bool, expert_sampled: bool = True):
+    """Roll out ``policy`` on every task; when it is None, the expert itself: its actions sampled
+    from its labels, or (``expert_sampled=False``) its own actions.
 
     Returns ``(completion (N,), solved (N,) bool: within the success radius at the end,
     inputs (S, 33) | None, expert probs (S, 4) | None)``."""
@@ -62,12 +66,14 @@ def rollout(policy: nn.Module | None, task_ids, seed: int, label: bool):
     for _ in range(EPISODE_STEPS):
         x = np.concatenate([obs, priv], 1)
         if label or policy is None:
-            probs = np.stack([expert.label(e)[1] for e in envs])
+            labels = [expert.label(e) for e in envs]
+            probs = np.stack([lab[1] for lab in labels])
         if label:
             xs.append(x)
             ys.append(probs)
         if policy is None:
-            acts = [int(rng.choice(4, p=p / p.sum())) for p in probs]
+            acts = ([int(rng.choice(4, p=p / p.sum())) for p in probs] if expert_sampled
+                    else [lab[0] for lab in labels])
         else:
             with torch.no_grad():
                 logits = policy(torch.from_numpy(x))
@@ -81,25 +87,24 @@ def rollout(policy: nn.Module | None, task_ids, seed: int, label: bool):
 
 
 def expert_on(task_ids, seed: int) -> tuple[float, float]:
-    """The expert's mean completion with its hard actions and sampled from its labels."""
-    hard = []
-    expert = RelocationExpert()
-    for k, t in enumerate(task_ids):
-        env = make_env(t)
-        env.reset(seed=seed + k)
-        for _ in range(EPISODE_STEPS):
-            env.step(expert.act(env))
-        hard.append(env.unwrapped.completion())
+    """The expert's mean completion with its own actions and sampled from its labels."""
+    hard, _, _, _ = rollout(None, task_ids, seed, label=False, expert_sampled=False)
     sampled, _, _, _ = rollout(None, task_ids, seed, label=False)
-    return float(np.mean(hard)), float(sampled.mean())
+    return float(hard.mean()), float(sampled.mean())
+
+
+def report_expert(task_ids) -> None:
+    """Print the expert's completion on ``task_ids``, reset as every test rollout here is."""
+    hard, sampled = expert_on(task_ids, TEST_SEED)
+    print(f"expert on {len(task_ids)} test tasks: completion {hard:.3f} (its actions), "
+          f"{sampled:.3f} (sampled from its labels)")
 
 
 def privileged_dagger(args) -> None:
     torch.manual_seed(args.seed)
     train = split_tasks("relocation", "train")[:args.tasks]
     test = split_tasks("relocation", "test")[:args.test_tasks]
-    hard, sampled = expert_on(test, 99_999)
-    print(f"expert on {len(test)} test tasks: completion {hard:.3f} (its actions), {sampled:.3f} (sampled from its labels)")
+    report_expert(test)
     policy = build_policy(33, args.width)
     opt = torch.optim.Adam(policy.parameters(), lr=1e-3)
     xs, ys = [], []
@@ -131,7 +136,7 @@ def privileged_dagger(args) -> None:
                 total += float(loss.detach()) * len(i)
         entropy = float(-(ya * torch.log(ya.clamp_min(1e-8))).sum(1).mean())
         policy.eval()
-        c_test, solved, _, _ = rollout(policy, test, 99_999, label=False)
+        c_test, solved, _, _ = rollout(policy, test, TEST_SEED, label=False)
         print(f"round {r}: train rollouts {c_train.mean():.3f} | on-policy KL {kl_new:.3f} | {len(ya):,} states, "
               f"KL on them {total / len(ya) - entropy:.3f} | test completion {c_test.mean():.3f} "
               f"(solved at the end: {solved.mean():.2f}) ({time.perf_counter() - start:.0f} s)",
@@ -157,10 +162,10 @@ def failure_modes(args) -> None:
     worker = RolloutWorker(get_domain("relocation"), settings, worker_id="failure-modes")
     worker.set_weights(state_dict_to_numpy(model), ckpt.policy_version)
     test = split_tasks("relocation", "test")[:args.test_tasks]
-    hard, sampled = expert_on(test, 99_999)
-    print(f"expert on {len(test)} test tasks: completion {hard:.3f} (its actions), {sampled:.3f} (sampled from its labels)")
+    report_expert(test)
     attempts = worker.collect(tuple(test), "test", args.seed)
-    print(f"{args.run_dir} (round {ckpt.round_index}), attempts ending below 0.9 completion, by where the block stopped:")
+    print(f"{args.run_dir} (round {ckpt.round_index}), attempts ending below 0.9 completion, "
+          "by where the block stopped:")
     for k in range(args.corrections + 1):
         rows = []
         for a in (a for a in attempts if a.attempt_index == k):
