@@ -141,6 +141,8 @@ def privileged_dagger(args) -> None:
               f"KL on them {total / len(ya) - entropy:.3f} | test completion {c_test.mean():.3f} "
               f"(solved at the end: {solved.mean():.2f}) ({time.perf_counter() - start:.0f} s)",
               flush=True)
+        if args.save_policy:  # weights only (torch.load(..., weights_only=True) reads them back)
+            torch.save(policy.state_dict(), args.save_policy)
 
 
 def failure_modes(args) -> None:
@@ -190,6 +192,7 @@ def main(argv=None) -> None:
     p.add_argument("--width", type=int, default=256, help="hidden units of the 3-layer head")
     p.add_argument("--keep-rounds", type=int, default=0, help="train on the newest N rounds only (0: all)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--save-policy", default="", help="write the privileged policy's state_dict here after every round")
     p.add_argument("--run-dir", default="", help="analyse this GPL run's failure modes instead")
     p.add_argument("--corrections", type=int, default=5)
     p.add_argument("--threads", type=int, default=1, help="torch threads")

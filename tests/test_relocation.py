@@ -7,6 +7,7 @@ import pickle
 import gymnasium
 import numpy as np
 import pytest
+import torch
 
 import gpl_dist.envs  # noqa: F401  (registers gpl/Relocation-v0)
 from gpl_dist.corrections import make_corrector
@@ -15,7 +16,7 @@ from gpl_dist.domains import get_domain
 from gpl_dist.envs.relocation import (DOMAIN, FIXED_XY, MOVABLE_START, VOCABULARY, RelocationEnv, make_splits,
                                       make_task)
 from gpl_dist.experts import make_expert
-from gpl_dist.splits import load_splits
+from gpl_dist.splits import load_splits, split_tasks
 
 
 def _rollout(env, actions, seed):
@@ -341,20 +342,46 @@ def test_render():
     assert RelocationEnv(8).render() is None
 
 
-def test_imitation_benchmark_runs_privileged_dagger():
+def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
     """``benchmarks/relocation_imitation.py`` end to end on 2 tasks: the expert's own figures, then
-    one line per DAgger round with the on-policy KL from round 1 on, and the aggregate growing."""
+    one line per DAgger round with the on-policy KL from round 1 on, and the aggregate growing;
+    the saved policy loads with ``weights_only=True``."""
     import re
     import subprocess
     import sys
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "benchmarks" / "relocation_imitation.py"
+    saved = tmp_path / "policy.pt"
     out = subprocess.run([sys.executable, str(script), "--rounds", "2", "--tasks", "2", "--test-tasks", "2",
-                          "--epochs", "1"], capture_output=True, text=True, timeout=300, check=True).stdout
+                          "--epochs", "1", "--save-policy", str(saved)],
+                         capture_output=True, text=True, timeout=300, check=True).stdout
+    weights = torch.load(saved, weights_only=True)
+    assert weights["1.weight"].shape == (256, 33) and weights["7.weight"].shape == (4, 256)
     expert = re.search(r"completion ([0-9.]+) \(its actions\), ([0-9.]+) \(sampled", out)
     assert expert and float(expert.group(1)) > 0.5 and float(expert.group(2)) > 0.5, out
     rounds = re.findall(r"round (\d): .*on-policy KL (\S+) \| ([\d,]+) states", out)
     assert [r[0] for r in rounds] == ["0", "1"], out
     assert rounds[0][1] == "nan" and float(rounds[1][1]) > 0.0
     assert int(rounds[1][2].replace(",", "")) == 2 * int(rounds[0][2].replace(",", "")) == 2 * 2 * 350
+
+
+def test_ppo_expert_benchmark_returns_and_one_task():
+    """``benchmarks/relocation_ppo_expert.py``: Monte-Carlo returns are exact, and two PPO iterations
+    on one task run with the authors' settings and report the task's completion and timing."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "relocation_ppo_expert.py"
+    spec = importlib.util.spec_from_file_location("relocation_ppo_expert", path)
+    ppo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ppo)
+    rewards = np.array([[1.0, 0.0], [2.0, -1.0], [3.0, 0.0]], dtype=np.float32)
+    g = ppo.GAMMA
+    expected = np.array([[1 + g * 2 + g * g * 3, -g], [2 + g * 3, -1.0], [3.0, 0.0]], dtype=np.float32)
+    np.testing.assert_allclose(ppo.discounted_returns(rewards), expected, rtol=1e-6)
+    first = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
+    again = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
+    assert first["iterations"] == 2 and first["finished_at"] is None
+    assert 0.0 <= first["completion"] <= 1.0 and first["seconds"] > 0.0
+    assert first["completion"] == again["completion"]  # deterministic for a seed
