@@ -64,13 +64,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
     from learner.evaluate import format_table, evaluate_run
 
     seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
-    result = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
-                          max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
+    result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
+                                max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
     import json
-    domain = json.loads((Path(args.run_dir) / "eval.json").read_text())["domain"]
+    domain = json.loads(path.read_text())["domain"]
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
     print(format_table(domain, result))
-    print(f"wrote {Path(args.run_dir) / 'eval.json'} and {Path(args.run_dir) / 'eval.png'}")
+    print(f"wrote {path} and {path.with_suffix('.png')}")
     return 0
 
 
@@ -118,7 +118,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
 
-    p = sub.add_parser("eval", help="meta-test a trained run on held-out tasks (Algorithm 2)")
+    p = sub.add_parser("eval", help="meta-test a trained run on held-out tasks (Algorithm 2)",
+                       description="Meta-test a trained run. Writes RUN_DIR/eval.json and eval.png with the run's "
+                                   "own eval settings; other settings write eval-<what differs>.json/.png "
+                                   "(eval-greedy.json, eval-c10.json, ...), leaving eval.json as it was.")
     p.add_argument("--run-dir", required=True)
     p.add_argument("--corrections", type=int, help="corrections to give (default: eval.num_corrections)")
     p.add_argument("--seeds", help="comma-separated seeds (default: eval.seeds)")

@@ -7,7 +7,9 @@ completion forward. Actions are sampled from the policy by default, as during co
 same action in the same state and gets stuck in loops (measured: completion after 5 corrections
 0.645 greedy vs 0.899 sampled, same weights), and the policy was trained on the states its sampled
 rollouts reach. Seeds make the sampling reproducible. The expert is not queried. Writes
-``eval.json`` and ``eval.png`` to the run dir.
+``eval.json`` and ``eval.png`` to the run dir when the run's own ``eval`` settings and latest
+checkpoint are used; any other setting gets its own name (``eval-greedy.json``,
+``eval-c2-seeds0_1-first3.json``, ...), so a side evaluation never replaces the run's result.
 """
 
 from __future__ import annotations
@@ -124,10 +126,22 @@ def plot(domain: str, result: EvalResult, path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: int, seeds: tuple[int, ...],
+                max_tasks: int, checkpoint: str | None) -> str:
+    """``eval`` for the run's own evaluation settings, else ``eval-`` plus what differs from them."""
+    e = cfg.eval
+    tags = [split if split != e.split else "", ("greedy" if greedy else "sampled") if greedy != e.greedy_actions else "",
+            f"c{num_corrections}" if num_corrections != e.num_corrections else "",
+            "seeds" + "_".join(str(s) for s in seeds) if tuple(seeds) != tuple(e.seeds) else "",
+            f"first{max_tasks}" if max_tasks != e.max_tasks else "", Path(checkpoint).stem if checkpoint else ""]
+    return "-".join(["eval", *(t for t in tags if t)])
+
+
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
                  split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
-                 greedy: bool | None = None) -> EvalResult:
-    """Evaluate a run's latest (or given) checkpoint; writes eval.json and eval.png."""
+                 greedy: bool | None = None) -> tuple[EvalResult, Path]:
+    """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
+    ``report_stem``) and returns the result and the JSON's path."""
     run_dir = Path(run_dir)
     ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
     cfg = config_from_dict(ckpt.config, str(run_dir / "config.yaml"))
@@ -136,16 +150,21 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
-    result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=k, seeds=seeds or cfg.eval.seeds,
-                             split=split, max_tasks=cfg.eval.max_tasks if max_tasks is None else max_tasks,
-                             greedy=greedy)
+    seeds = tuple(seeds or cfg.eval.seeds)
+    max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks
+    result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=k, seeds=seeds, split=split,
+                             max_tasks=max_tasks, greedy=greedy)
+    stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
+                       checkpoint=checkpoint)
     payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
-               "round": ckpt.round_index, "num_corrections": k, "seeds": list(seeds or cfg.eval.seeds),
+               "round": ckpt.round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
+               "seeds": list(seeds), "max_tasks": max_tasks,
                "greedy_actions": greedy, "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
                "paper_completion": {str(k2): v for k2, v in PAPER_COMPLETION.get(cfg.env.domain, {}).items()}}
-    (run_dir / "eval.json").write_text(json.dumps(payload, indent=1) + "\n")
-    plot(cfg.env.domain, result, run_dir / "eval.png",
+    path = run_dir / f"{stem}.json"
+    path.write_text(json.dumps(payload, indent=1) + "\n")
+    plot(cfg.env.domain, result, path.with_suffix(".png"),
          f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {ckpt.round_index}")
-    return result
+    return result, path

@@ -52,12 +52,24 @@ def test_train_eval_inspect_clean(tmp_path, capsys):
     assert main(["eval", "--run-dir", str(run), "--max-tasks", "3", "--seeds", "0,1", "--corrections", "2"]) == 0
     out = capsys.readouterr().out
     assert "c0" in out and "c2" in out and "paper" in out
-    result = json.loads((run / "eval.json").read_text())
+    # settings other than the run's own eval section get their own report, named after the difference
+    report = run / "eval-c2-first3.json"  # seeds 0,1 are the config's own
+    assert f"wrote {report}" in out
+    result = json.loads(report.read_text())
     assert result["num_tasks"] == 3 and len(result["completion"]) == 3 and len(result["per_seed"]) == 2
-    assert result["split"] == "test" and result["greedy_actions"] is False
+    assert result["split"] == "test" and result["greedy_actions"] is False and result["max_tasks"] == 3
     assert main(["eval", "--run-dir", str(run), "--max-tasks", "2", "--seeds", "0", "--corrections", "1", "--greedy"]) == 0
-    assert json.loads((run / "eval.json").read_text())["greedy_actions"] is True
-    assert (run / "eval.png").stat().st_size > 1000
+    greedy = run / "eval-greedy-c1-seeds0-first2.json"
+    assert json.loads(greedy.read_text())["greedy_actions"] is True
+    assert json.loads(report.read_text()) == result  # the first report is untouched
+    assert greedy.with_suffix(".png").stat().st_size > 1000
+    assert not (run / "eval.json").exists()
+    from gpl_dist.config import RunConfig
+    from learner.evaluate import report_stem
+    own = dict(split="test", greedy=False, num_corrections=5, seeds=(0, 1, 2), max_tasks=0, checkpoint=None)
+    assert report_stem(RunConfig(), **own) == "eval"
+    assert report_stem(RunConfig(), **{**own, "split": "train", "checkpoint": "c/round-000003.pt"}) == \
+        "eval-train-round-000003"
 
     assert main(["inspect", str(run), "--tasks"]) == 0
     out = capsys.readouterr().out
