@@ -38,6 +38,8 @@ class EnvConfig:
     """Meta-train on exactly these task ids instead of the training split (empty uses the split)."""
     correction_kind: str = "subgoal"
     """Correction oracle variant (multiroom: subgoal, directional, binary, all; relocation: mixed)."""
+    expert: str = "scripted"
+    """Expert that labels visited states: scripted, or learned (relocation: a PPO-tuned MLP, as the authors')."""
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ def rollout_settings(cfg: RunConfig) -> RolloutSettings:
     """The worker's slice of the config."""
     return RolloutSettings(num_corrections=cfg.collection.num_corrections, greedy_actions=cfg.collection.greedy_actions,
                            correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                           embedding_dim=cfg.model.embedding_dim)
+                           embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert)
 
 
 def buffer_root(cfg: RunConfig, run_dir: Path) -> str:
@@ -112,6 +112,9 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray."""
     from storage import BufferReader, commit_round, committed_rounds, recover_pending
 
+    from gpl_dist.experts import check_expert_kind
+
+    check_expert_kind(cfg.env.domain, cfg.env.expert)  # before Ray starts: a typo fails in one line
     run_dir = Path(run_dir)
     ckpt_dir = run_dir / "checkpoints"
     if (ckpt_dir / "latest.pt").exists() and not resume:

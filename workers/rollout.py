@@ -76,6 +76,7 @@ class RolloutSettings:
         variant: model variant (decides the instruction text and whether corrections are used).
         embedding_dim: word-embedding size of the model.
         label_states: query the expert for every state (False at meta-test time).
+        expert: which of the domain's experts labels the states (``scripted`` or ``learned``).
     """
 
     num_corrections: int = 5
@@ -84,6 +85,7 @@ class RolloutSettings:
     variant: str = "gpl"
     embedding_dim: int = 16
     label_states: bool = True
+    expert: str = "scripted"
 
 
 class TaskFailure(RuntimeError):
@@ -176,7 +178,7 @@ class RolloutWorker:
         expert = None
         if s.label_states and not failed.all():
             if self._expert is None:
-                self._expert = make_expert(next(e for e in envs if e is not None))
+                self._expert = make_expert(next(e for e in envs if e is not None), self.settings.expert)
             expert = self._expert
         max_attempts = s.num_corrections + 1 if self.model.uses_corrections else 1
         stride, steps = d.trajectory_stride, d.steps_per_attempt

@@ -1,7 +1,11 @@
 """Experts: near-optimal actions from any state, with privileged access to the env.
 
-``make_expert(env)`` returns the expert of ``env``'s domain; ``expert.act(env)`` gives the action
-for the env's current state. ``env`` may be wrapped (as ``gymnasium.make`` returns it) or not.
+``make_expert(env, kind)`` returns an expert of ``env``'s domain; ``expert.act(env)`` gives the
+action for the env's current state, ``expert.label(env)`` the action and the distribution the
+learner fits. ``env`` may be wrapped (as ``gymnasium.make`` returns it) or not. Kinds:
+``scripted`` (every domain: planners over the simulator's state) and, for relocation, ``learned``
+(an MLP given the exact target, trained by DAgger on the scripted expert and then by PPO, like
+the authors' learned experts; ``gpl_dist.experts.relocation_learned``).
 """
 
 from __future__ import annotations
@@ -12,9 +16,18 @@ from typing import Any
 from gpl_dist.roles import Expert
 
 _EXPERTS = {
-    "multiroom": "gpl_dist.experts.multiroom:MultiRoomExpert",
-    "relocation": "gpl_dist.experts.relocation:RelocationExpert",
+    "multiroom": {"scripted": "gpl_dist.experts.multiroom:MultiRoomExpert"},
+    "relocation": {"scripted": "gpl_dist.experts.relocation:RelocationExpert",
+                   "learned": "gpl_dist.experts.relocation_learned:LearnedRelocationExpert"},
 }
+
+
+def check_expert_kind(domain: str, kind: str) -> None:
+    """Raise ``ValueError`` naming the known kinds unless ``domain`` has an expert of ``kind``."""
+    if domain not in _EXPERTS:
+        raise ValueError(f"unknown domain '{domain}' (known: {', '.join(_EXPERTS)})")
+    if kind not in _EXPERTS[domain]:
+        raise ValueError(f"unknown expert '{kind}' for {domain} (known: {', '.join(_EXPERTS[domain])})")
 
 
 def domain_of(env: Any) -> str:
@@ -25,7 +38,9 @@ def domain_of(env: Any) -> str:
     return name
 
 
-def make_expert(env: Any) -> Expert:
-    """The expert for ``env``'s domain (one instance can serve every task of the domain)."""
-    module, cls = _EXPERTS[domain_of(env)].split(":")
+def make_expert(env: Any, kind: str = "scripted") -> Expert:
+    """The ``kind`` expert for ``env``'s domain (one instance can serve every task of the domain)."""
+    domain = domain_of(env)
+    check_expert_kind(domain, kind)
+    module, cls = _EXPERTS[domain][kind].split(":")
     return getattr(importlib.import_module(module), cls)()

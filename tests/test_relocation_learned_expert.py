@@ -1,0 +1,114 @@
+"""The learned relocation expert: packaged weights, labels, the export from torch, selection by config."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gpl_dist.config import config_from_dict
+from gpl_dist.domains import get_domain
+from gpl_dist.envs.relocation import make_env
+from gpl_dist.experts import make_expert
+from gpl_dist.experts.relocation import RelocationExpert
+from gpl_dist.experts.relocation_learned import LearnedRelocationExpert, action_probs, load_weights, policy_inputs
+from gpl_dist.splits import split_tasks
+from workers.rollout import RolloutSettings, RolloutWorker
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _module(path: Path):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    return mod
+
+
+def test_packaged_weights_load_without_pickle_and_give_distributions():
+    w = load_weights()
+    assert w["w0"].shape == (256, 33) and w["w3"].shape == (4, 256) and w["norm_var"].min() > 0
+    env = make_env(split_tasks("relocation", "test")[0])
+    env.reset(seed=5)
+    expert = make_expert(env, "learned")
+    assert isinstance(expert, LearnedRelocationExpert) and expert.soft_labels
+    action, probs = expert.label(env)
+    assert probs.dtype == np.float32 and probs.shape == (4,) and abs(float(probs.sum()) - 1.0) < 1e-5
+    assert action == int(np.argmax(probs)) == expert.act(env)
+    again = LearnedRelocationExpert().label(env)
+    assert again[0] == action and np.array_equal(again[1], probs)  # stateless: same state, same label
+
+
+def test_export_round_trip_matches_the_torch_policy(tmp_path):
+    """``scripts/train_relocation_expert.export`` writes what ``action_probs`` computes like torch."""
+    script = _module(ROOT / "scripts" / "train_relocation_expert.py")
+    torch.manual_seed(0)
+    policy = script.build_policy(33, 256)
+    with torch.no_grad():
+        policy[0].running_mean.uniform_(-1, 1)
+        policy[0].running_var.uniform_(0.5, 2.0)
+        policy[0].weight.uniform_(0.5, 1.5)
+    policy.eval()
+    path = tmp_path / "expert.npz"
+    script.export(policy, str(path))
+    with np.load(path, allow_pickle=False) as raw:
+        weights = {k: raw[k].astype(np.float64) for k in raw.files}
+    x = np.random.default_rng(0).normal(size=(16, 33))
+    with torch.no_grad():
+        expected = torch.softmax(policy(torch.from_numpy(x.astype(np.float32))), 1).numpy()
+    np.testing.assert_allclose(action_probs(weights, x), expected, atol=1e-5)
+
+
+def test_policy_inputs_are_the_observation_target_and_block():
+    env = make_env(split_tasks("relocation", "train")[3])
+    obs, _ = env.reset(seed=1)
+    for a in (2, 2, 0, 1):
+        obs, *_ = env.step(a)
+    x = policy_inputs(env)
+    np.testing.assert_allclose(x[:28], obs, atol=1e-6)
+    assert tuple(x[28:30]) == env.task.target and x[30 + env.task.block] == 1.0 and x[30:33].sum() == 1.0
+
+
+def test_learned_expert_solves_tasks_on_its_own():
+    """Its own (argmax) actions on the first 3 test tasks: at least 0.8 mean completion."""
+    expert = LearnedRelocationExpert()
+    completions = []
+    for task in split_tasks("relocation", "test")[:3]:
+        env = make_env(task)
+        env.reset(seed=99_999)
+        for _ in range(350):
+            env.step(expert.act(env))
+        completions.append(env.completion())
+    assert np.mean(completions) >= 0.8, completions
+
+
+def test_unknown_expert_kinds_fail_with_the_known_ones(tmp_path):
+    from learner.driver import run_training
+
+    env = make_env(0)
+    with pytest.raises(ValueError, match=r"unknown expert 'ppo' for relocation \(known: scripted, learned\)"):
+        make_expert(env, "ppo")
+    assert isinstance(make_expert(env), RelocationExpert)  # scripted stays the default
+    cfg = config_from_dict({"env": {"domain": "multiroom", "expert": "learned"}})
+    with pytest.raises(ValueError, match=r"unknown expert 'learned' for multiroom \(known: scripted\)"):
+        run_training(cfg, tmp_path / "run", serial=True, progress=False)
+    assert not (tmp_path / "run").exists()  # failed before writing anything
+
+
+def test_worker_labels_with_the_configured_expert():
+    settings = RolloutSettings(num_corrections=0, expert="learned")
+    worker = RolloutWorker(get_domain("relocation"), settings, worker_id="t")
+    attempts = worker.collect(tuple(split_tasks("relocation", "train")[:2]), "train", 0)
+    assert len(attempts) == 2
+    for a in attempts:
+        assert a.expert_probs is not None and a.expert_probs.shape == (len(a.actions), 4)
+        np.testing.assert_allclose(a.expert_probs.sum(1), 1.0, atol=1e-5)
+        assert np.array_equal(a.expert_actions, a.expert_probs.argmax(1))
