@@ -14,7 +14,7 @@ normalisation), and takes clipped policy steps (``--clip``) for ``--epochs`` epo
 ``--minibatch`` states, stopping an iteration's epochs once a minibatch's KL to the rollout
 policy passes 0.02. The critic alone trains for the first ``--warmup`` iterations, so that the
 first policy steps follow real advantages. Every ``--eval-every`` iterations it prints test
-completion on the first 100 test tasks (the imitation benchmark's seeds) and writes ``--out``.
+completion on the first ``--test-tasks`` test tasks (the imitation benchmark's seeds) and writes ``--out``.
 Deterministic for given arguments and torch thread count.
 """
 
@@ -66,6 +66,7 @@ def main(argv=None) -> None:
     p.add_argument("--minibatch", type=int, default=2048)
     p.add_argument("--warmup", type=int, default=8, help="iterations that train only the critic")
     p.add_argument("--eval-every", type=int, default=40)
+    p.add_argument("--test-tasks", type=int, default=100, help="first N test tasks for the printed completion")
     p.add_argument("--threads", type=int, default=2)
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)
@@ -81,7 +82,7 @@ def main(argv=None) -> None:
     policy_opt = torch.optim.Adam(policy.parameters(), lr=a.lr)
     critic_opt = torch.optim.Adam([q for q in critic.parameters() if q.requires_grad], lr=1e-3)
     train = np.array(split_tasks("relocation", "train"))
-    test = split_tasks("relocation", "test")[:100]
+    test = split_tasks("relocation", "test")[:a.test_tasks]
     envs_by_task: dict[int, object] = {}
     gen = torch.Generator().manual_seed(0)
 

@@ -112,3 +112,23 @@ def test_worker_labels_with_the_configured_expert():
         assert a.expert_probs is not None and a.expert_probs.shape == (len(a.actions), 4)
         np.testing.assert_allclose(a.expert_probs.sum(1), 1.0, atol=1e-5)
         assert np.array_equal(a.expert_actions, a.expert_probs.argmax(1))
+
+
+def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
+    """Two PPO iterations (one critic-only) from a saved policy on 4 tasks; the export loads."""
+    script = _module(ROOT / "scripts" / "train_relocation_expert.py")
+    torch.manual_seed(1)
+    init, out = tmp_path / "init.pt", tmp_path / "expert.npz"
+    torch.save(script.build_policy(33, 256).state_dict(), init)
+    script.main(["--init", str(init), "--out", str(out), "--iterations", "2", "--envs", "4", "--warmup", "1",
+                 "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256", "--threads", "1"])
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
+    assert lines[1].startswith("iteration 0:") and "KL 0.0000" in lines[1]  # critic warm-up: no policy step
+    assert lines[2].startswith("iteration 1:") and "test completion" in lines[2]
+    start = torch.load(init, weights_only=True)
+    with np.load(out, allow_pickle=False) as raw:
+        assert sorted(raw.files) == sorted(["norm_mean", "norm_var", "norm_weight", "norm_bias",
+                                            *(f"w{i}" for i in range(4)), *(f"b{i}" for i in range(4))])
+        np.testing.assert_array_equal(raw["norm_mean"], start["0.running_mean"].numpy())  # frozen statistics
+        assert not np.array_equal(raw["w0"], start["1.weight"].numpy())  # iteration 1 moved the policy
