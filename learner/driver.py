@@ -25,6 +25,7 @@ import torch
 
 from gpl_dist.config import RunConfig, config_to_dict, save_config
 from gpl_dist.domains import get_domain
+from gpl_dist.experts import check_expert_kind
 from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import build_model
 from gpl_dist.records import WorkUnit
@@ -111,8 +112,6 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
                  resume: bool = False, progress: bool = True, collector=None) -> TrainingResult:
     """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray."""
     from storage import BufferReader, commit_round, committed_rounds, recover_pending
-
-    from gpl_dist.experts import check_expert_kind
 
     check_expert_kind(cfg.env.domain, cfg.env.expert)  # before Ray starts: a typo fails in one line
     run_dir = Path(run_dir)

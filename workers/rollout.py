@@ -178,7 +178,7 @@ class RolloutWorker:
         expert = None
         if s.label_states and not failed.all():
             if self._expert is None:
-                self._expert = make_expert(next(e for e in envs if e is not None), self.settings.expert)
+                self._expert = make_expert(next(e for e in envs if e is not None), s.expert)
             expert = self._expert
         max_attempts = s.num_corrections + 1 if self.model.uses_corrections else 1
         stride, steps = d.trajectory_stride, d.steps_per_attempt
