@@ -15,7 +15,9 @@ normalisation), and takes clipped policy steps (``--clip``) for ``--epochs`` epo
 policy passes 0.02. The critic alone trains for the first ``--warmup`` iterations, so that the
 first policy steps follow real advantages. Every ``--eval-every`` iterations it prints test
 completion on the first ``--test-tasks`` test tasks (the imitation benchmark's seeds) and writes ``--out``.
-Deterministic for given arguments and torch thread count.
+Deterministic for given arguments and torch thread count. (The packaged weights were exported at
+iteration 279 of the same loop run as a session script; this script, run again, reproduced that
+run's first 40 iterations exactly: every train completion and KL, and test completion 0.894.)
 """
 
 from __future__ import annotations
