@@ -53,6 +53,35 @@ def discounted_returns(rewards: np.ndarray) -> np.ndarray:
     return out
 
 
+def sample_episodes(policy: nn.Module, envs: list, reset_seeds, gen: torch.Generator, extra: np.ndarray | None = None):
+    """One episode of ``policy`` (sampled actions) on every env, in lockstep.
+
+    Returns float32 inputs ``(T + 1, N, D)``: the observation, then ``extra`` ``(N, E)`` when given
+    (row T is the state after the last step); int64 actions, float32 their log-probabilities and
+    float32 rewards, each ``(T, N)``."""
+    def inputs(obs: np.ndarray) -> np.ndarray:
+        return obs if extra is None else np.concatenate([obs, extra], 1)
+
+    obs = np.stack([e.reset(seed=int(s))[0] for e, s in zip(envs, reset_seeds)]).astype(np.float32)
+    T, N = EPISODE_STEPS, len(envs)
+    x_buf = np.zeros((T + 1, N, inputs(obs).shape[1]), np.float32)
+    act_buf = np.zeros((T, N), np.int64)
+    logp_buf = np.zeros((T, N), np.float32)
+    rew_buf = np.zeros((T, N), np.float32)
+    for t in range(T):
+        x_buf[t] = inputs(obs)
+        with torch.no_grad():
+            logp = torch.log_softmax(policy(torch.from_numpy(x_buf[t])), 1)
+        act = torch.multinomial(logp.exp(), 1, generator=gen).squeeze(1)
+        act_buf[t] = act.numpy()
+        logp_buf[t] = logp.gather(1, act[:, None]).squeeze(1).numpy()
+        steps = [e.step(int(u)) for e, u in zip(envs, act_buf[t])]
+        obs = np.stack([r[0] for r in steps]).astype(np.float32)
+        rew_buf[t] = [r[1] for r in steps]
+    x_buf[T] = inputs(obs)
+    return x_buf, act_buf, logp_buf, rew_buf
+
+
 def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0) -> dict:
     """PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran."""
     torch.manual_seed(seed)
@@ -64,21 +93,8 @@ def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0)
     finished_at, completion = None, 0.0
     it = 0
     for it in range(max_iterations):
-        obs = np.stack([e.reset(seed=seed + NUM_COPIES * it + k)[0] for k, e in enumerate(envs)])
-        obs_buf = np.zeros((EPISODE_STEPS, NUM_COPIES, 28), dtype=np.float32)
-        act_buf = np.zeros((EPISODE_STEPS, NUM_COPIES), dtype=np.int64)
-        logp_buf = np.zeros((EPISODE_STEPS, NUM_COPIES), dtype=np.float32)
-        rew_buf = np.zeros((EPISODE_STEPS, NUM_COPIES), dtype=np.float32)
-        for t in range(EPISODE_STEPS):
-            obs_buf[t] = obs
-            with torch.no_grad():
-                logp = torch.log_softmax(policy(torch.from_numpy(obs_buf[t])), 1)
-            a = torch.multinomial(logp.exp(), 1, generator=gen).squeeze(1)
-            act_buf[t] = a.numpy()
-            logp_buf[t] = logp.gather(1, a[:, None]).squeeze(1).numpy()
-            steps = [e.step(int(x)) for e, x in zip(envs, act_buf[t])]
-            obs = np.stack([s[0] for s in steps])
-            rew_buf[t] = [s[1] for s in steps]
+        x_buf, act_buf, logp_buf, rew_buf = sample_episodes(
+            policy, envs, [seed + NUM_COPIES * it + k for k in range(NUM_COPIES)], gen)
         finished = np.array([e.distance() < SUCCESS_RADIUS for e in envs])
         completion = float(np.mean([e.completion() for e in envs]))
         if finished.all():
@@ -86,7 +102,7 @@ def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0)
             break
         if log_every and it % log_every == 0:
             print(f"  task {task_id} iteration {it}: completion {completion:.3f}, finished {finished.mean():.2f}", flush=True)
-        x = torch.from_numpy(obs_buf.reshape(-1, 28))
+        x = torch.from_numpy(x_buf[:-1].reshape(-1, 28))
         acts = torch.from_numpy(act_buf.reshape(-1))
         old_logp = torch.from_numpy(logp_buf.reshape(-1))
         returns = torch.from_numpy(discounted_returns(rew_buf).reshape(-1))

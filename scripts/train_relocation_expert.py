@@ -34,6 +34,7 @@ from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from relocation_imitation import TEST_SEED, build_policy, privileged_inputs, rollout  # noqa: E402
+from relocation_ppo_expert import sample_episodes  # noqa: E402
 
 from gpl_dist.envs.relocation import EPISODE_STEPS, make_env  # noqa: E402
 from gpl_dist.experts.relocation_learned import NUM_LAYERS  # noqa: E402
@@ -102,23 +103,8 @@ def main(argv=None) -> None:
             if int(t) not in envs_by_task:
                 envs_by_task[int(t)] = make_env(int(t))
         envs = [envs_by_task[int(t)] for t in tasks]
-        priv = privileged_inputs(tasks)
-        obs = np.stack([e.reset(seed=10_000 + it * N + k)[0] for k, e in enumerate(envs)]).astype(np.float32)
-        x_buf = np.zeros((T + 1, N, 33), np.float32)
-        act_buf = np.zeros((T, N), np.int64)
-        logp_buf = np.zeros((T, N), np.float32)
-        rew_buf = np.zeros((T, N), np.float32)
-        for t in range(T):
-            x_buf[t] = np.concatenate([obs, priv], 1)
-            with torch.no_grad():
-                logp = torch.log_softmax(policy(torch.from_numpy(x_buf[t])), 1)
-            act = torch.multinomial(logp.exp(), 1, generator=gen).squeeze(1)
-            act_buf[t] = act.numpy()
-            logp_buf[t] = logp.gather(1, act[:, None]).squeeze(1).numpy()
-            steps = [e.step(int(u)) for e, u in zip(envs, act_buf[t])]
-            obs = np.stack([r[0] for r in steps]).astype(np.float32)
-            rew_buf[t] = [r[1] for r in steps]
-        x_buf[T] = np.concatenate([obs, priv], 1)
+        x_buf, act_buf, logp_buf, rew_buf = sample_episodes(
+            policy, envs, [10_000 + it * N + k for k in range(N)], gen, extra=privileged_inputs(tasks))
         train_completion = float(np.mean([e.completion() for e in envs]))
         with torch.no_grad():
             values = critic(torch.from_numpy(x_buf.reshape(-1, 33))).reshape(T + 1, N).numpy() * RETURN_SCALE
