@@ -70,6 +70,8 @@ class ModelConfig:
     """gpl, instruction_only, full_information, no_instruction, no_trajectory or latest_correction."""
     embedding_dim: int = 16
     """Size of the word embeddings shared by the instruction and correction modules."""
+    trajectory_ends_at_last_state: bool = False
+    """Subsample earlier attempts every stride-th state ending at their last state (the one the correction describes), not from t = 0."""
 
 
 @dataclass(frozen=True)

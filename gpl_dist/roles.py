@@ -57,7 +57,20 @@ class DomainSpec:
     @property
     def trajectory_samples(self) -> int:
         """Number of states the correction module reads from one earlier attempt."""
-        return len(range(0, self.steps_per_attempt, self.trajectory_stride))
+        return len(trajectory_times(self.steps_per_attempt, self.trajectory_stride, end_aligned=False))
+
+
+def trajectory_times(length: int, stride: int, end_aligned: bool) -> np.ndarray:
+    """The time steps of an attempt of ``length`` states that the correction module reads.
+
+    Every ``stride``-th step from 0, or (``end_aligned``, ``ModelConfig.trajectory_ends_at_last_state``)
+    every ``stride``-th step ending at ``length - 1``: the state the attempt's correction was
+    computed from. int64 ``(ceil(length / stride),)`` either way, so the anchoring changes no shape.
+    The rollout worker and the buffer reader both sample with this, so that training sees what
+    collection acted on.
+    """
+    first = (length - 1) % stride if end_aligned and length > 0 else 0
+    return np.arange(first, length, stride, dtype=np.int64)
 
 
 @runtime_checkable

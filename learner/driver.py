@@ -43,7 +43,8 @@ def rollout_settings(cfg: RunConfig) -> RolloutSettings:
     """The worker's slice of the config."""
     return RolloutSettings(num_corrections=cfg.collection.num_corrections, greedy_actions=cfg.collection.greedy_actions,
                            correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                           embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert)
+                           embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert,
+                           trajectory_ends_at_last_state=cfg.model.trajectory_ends_at_last_state)
 
 
 def buffer_root(cfg: RunConfig, run_dir: Path) -> str:
@@ -187,7 +188,8 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
             metrics["collection_seconds"] = time.perf_counter() - t0
 
             t1 = time.perf_counter()
-            view = reader.load_training_view(cfg.buffer.capacity_tuples, domain.trajectory_stride)
+            view = reader.load_training_view(cfg.buffer.capacity_tuples, domain.trajectory_stride,
+                                              cfg.model.trajectory_ends_at_last_state)
             metrics["load_seconds"] = time.perf_counter() - t1
             metrics["completion_by_corrections"] = completion_curve(reader, r, max_attempts)
             bar = bars.training(r, cfg.training.num_epochs_per_round)

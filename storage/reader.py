@@ -19,6 +19,7 @@ import zarr
 from zarr.core.buffer import cpu
 from zarr.storage import MemoryStore
 
+from gpl_dist.roles import trajectory_times
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve, sha256_hex
 from storage.layout import OBS_ARRAY
@@ -41,9 +42,10 @@ class TrainingView:
         in_window bool ``(A,)`` (its tuples are in the view);
         context_rows int64 ``(A, Kmax)``: rows of attempts 0..k-1 of the same (round, task), in
         order, padded with -1; ``Kmax = max(1, max attempt_index)``;
-        trajectories ``(A, S, *O)``: the attempt's observations at t = 0, stride, 2*stride, ...;
-        ``S = max(1, ceil(max length / stride))``; samples past an attempt's end are zeros, and
-        trajectory_lengths int64 ``(A,)`` = ``ceil(length / stride)`` counts the real ones.
+        trajectories ``(A, S, *O)``: the attempt's observations at ``trajectory_times(length,
+        stride, end_aligned)``: t = 0, stride, 2*stride, ..., or, end-aligned, ..., length-1-stride,
+        length-1; ``S = max(1, ceil(max length / stride))``; samples past an attempt's count are
+        zeros, and trajectory_lengths int64 ``(A,)`` = ``ceil(length / stride)`` counts the real ones.
     """
 
     observations: np.ndarray
@@ -67,6 +69,7 @@ class TrainingView:
     trajectories: np.ndarray
     trajectory_lengths: np.ndarray
     trajectory_stride: int
+    trajectory_end_aligned: bool
     rounds: tuple[int, ...]
 
     @property
@@ -206,8 +209,12 @@ class BufferReader:
         return pa.concat_tables(tables)
 
     # --------------------------------------------------------------------------------------------
-    def load_training_view(self, capacity_tuples: int = 1_000_000, trajectory_stride: int = 25) -> TrainingView:
+    def load_training_view(self, capacity_tuples: int = 1_000_000, trajectory_stride: int = 25,
+                           trajectory_end_aligned: bool = False) -> TrainingView:
         """Newest ``capacity_tuples`` labelled states (whole attempts, FIFO over committed rounds).
+
+        ``trajectory_stride`` and ``trajectory_end_aligned`` pick each attempt's trajectory samples
+        by ``gpl_dist.roles.trajectory_times``, as the rollout worker did when it acted on them.
 
         Rounds are kept newest first while they fit whole; of the first round that does not fit, a
         random subset of whole attempts (seeded by the round index) fills the rest.
@@ -254,7 +261,7 @@ class BufferReader:
             if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (obs_shape, obs_dtype):
                 raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} differ from {obs_shape} {obs_dtype}")
         if not tables:
-            return _empty_view(obs_shape, obs_dtype, trajectory_stride, ())
+            return _empty_view(obs_shape, obs_dtype, trajectory_stride, trajectory_end_aligned, ())
 
         att = pa.concat_tables(tables)
         keys = att.column("attempt_key").to_numpy()
@@ -298,7 +305,10 @@ class BufferReader:
         tuple_start[a_in_window] = np.concatenate([[0], np.cumsum(lengths[a_in_window])[:-1]]).astype(np.int64)
         timesteps = np.arange(n, dtype=np.int64) - np.repeat(tuple_start[a_in_window], lengths[a_in_window])
 
-        stride = int(trajectory_stride)
+        stride, end_aligned = int(trajectory_stride), bool(trajectory_end_aligned)
+        # attempts share a handful of lengths: one index array per length
+        times_of = {int(n): trajectory_times(int(n), stride, end_aligned) for n in np.unique(lengths)}
+        times = lambda length: times_of[int(length)]  # noqa: E731
         t_len = -(-lengths // stride)
         s_max = max(1, int(t_len.max()) if len(t_len) else 1)
         trajectories = np.zeros((len(sel), s_max, *obs_shape), obs_dtype)
@@ -340,13 +350,12 @@ class BufferReader:
                     probs_chunks.append((pos, _probs_rows(tup.column("expert_probs") if "expert_probs" in tup.column_names else None)))
                     for i in win:
                         j = new_row[i]
-                        s = tuple_start[j]
-                        trajectories[j, : t_len[j]] = observations[s : s + lengths[j] : stride]
+                        trajectories[j, : t_len[j]] = observations[tuple_start[j] + times(lengths[j])]
                     pos += m_rows
                 ctx_only = need[~in_window[need]]
                 if len(ctx_only):
                     js = new_row[ctx_only]
-                    gather = np.concatenate([obs_start_all[i] + np.arange(0, lengths[j], stride) for i, j in zip(ctx_only, js)])
+                    gather = np.concatenate([obs_start_all[i] + times(lengths[j]) for i, j in zip(ctx_only, js)])
                     got = z.oindex[gather] if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
                     g = 0
                     for j in js:
@@ -380,11 +389,13 @@ class BufferReader:
             trajectories=trajectories,
             trajectory_lengths=t_len.astype(np.int64),
             trajectory_stride=stride,
+            trajectory_end_aligned=end_aligned,
             rounds=tuple(m.round_index for m in manifests),
         )
 
 
-def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, rounds: tuple[int, ...]) -> TrainingView:
+def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, end_aligned: bool,
+                rounds: tuple[int, ...]) -> TrainingView:
     z = lambda *s, dt=np.int64: np.zeros(s, dt)  # noqa: E731
     return TrainingView(
         observations=np.zeros((0, *obs_shape), dtype), expert_actions=z(0), expert_probs=None, actions=z(0), timesteps=z(0),
@@ -392,5 +403,5 @@ def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, rounds
         attempt_index=z(0), lengths=z(0), instruction_ids=z(0, 0), correction_ids=z(0, 0),
         completion=z(0, dt=np.float32), success=z(0, dt=bool), in_window=z(0, dt=bool),
         context_rows=z(0, 1), trajectories=np.zeros((0, 1, *obs_shape), dtype), trajectory_lengths=z(0),
-        trajectory_stride=stride, rounds=rounds,
+        trajectory_stride=stride, trajectory_end_aligned=bool(end_aligned), rounds=rounds,
     )

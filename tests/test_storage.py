@@ -43,7 +43,7 @@ def write_run(root, kind=GRID, rounds=2, units=2, tasks=3, k=3, steps=(5, 60), c
     return expected
 
 
-def check_view(view, expected, stride):
+def check_view(view, expected, stride, end_aligned=False):
     """Every array of ``view`` against the attempts it was written from."""
     keys = view.attempt_keys
     assert (np.diff(keys) > 0).all()
@@ -63,10 +63,13 @@ def check_view(view, expected, stride):
         for j in range(k):
             b, rb, _, _ = expected[int(keys[ctx[j]])]
             assert (rb, b.task_id, b.attempt_index) == (r, a.task_id, j)
-        # trajectory samples, zero padded
+        # trajectory samples, zero padded; end-aligned ones end at the attempt's last state
         n_s = -(-a.length // stride)
         assert view.trajectory_lengths[i] == n_s
-        np.testing.assert_array_equal(view.trajectories[i, :n_s], a.observations[::stride])
+        first = (a.length - 1) % stride if end_aligned else 0
+        np.testing.assert_array_equal(view.trajectories[i, :n_s], a.observations[first::stride])
+        if end_aligned:
+            np.testing.assert_array_equal(view.trajectories[i, n_s - 1], a.observations[-1])
         assert not view.trajectories[i, n_s:].any()
         if view.in_window[i]:
             sl = slice(pos, pos + a.length)
@@ -83,13 +86,14 @@ def check_view(view, expected, stride):
     return row_of
 
 
-@pytest.mark.parametrize("kind", [GRID, VECTOR])
-def test_round_trip_both_domains(tmp_path, kind):
+@pytest.mark.parametrize("kind,end_aligned", [(GRID, False), (VECTOR, False), (VECTOR, True)])
+def test_round_trip_both_domains(tmp_path, kind, end_aligned):
     root = tmp_path / "run"
     expected = write_run(root, kind)
     reader = BufferReader(root)
     assert reader.committed_rounds() == [0, 1]
-    view = reader.load_training_view(capacity_tuples=10**9, trajectory_stride=7)
+    view = reader.load_training_view(capacity_tuples=10**9, trajectory_stride=7, trajectory_end_aligned=end_aligned)
+    assert view.trajectory_end_aligned is end_aligned
     assert view.num_attempts == len(expected) and view.in_window.all()
     assert view.num_tuples == sum(a.length for a, *_ in expected.values())
     shape, dtype = ((7, 7, 6), np.uint8) if kind == GRID else ((28,), np.float32)
@@ -98,7 +102,7 @@ def test_round_trip_both_domains(tmp_path, kind):
     assert view.expert_actions.dtype == np.int64 and view.attempt_rows.dtype == np.int64
     assert view.instruction_ids.dtype == np.int64 and view.completion.dtype == np.float32
     assert view.context_rows.shape[1] == 2
-    check_view(view, expected, 7)
+    check_view(view, expected, 7, end_aligned)
     # metadata columns come back exactly
     att = reader.read_table("attempts").to_pylist()
     assert len(att) == len(expected)
@@ -180,7 +184,8 @@ def test_pyarrow_and_duckdb_see_only_committed_data(tmp_path):
     assert committed_rounds(root) == [0, 1] and tuples.count_rows() == n_tuples
 
 
-def test_fifo_capacity_keeps_newest_whole_attempts_and_context(tmp_path):
+@pytest.mark.parametrize("end_aligned", [False, True])
+def test_fifo_capacity_keeps_newest_whole_attempts_and_context(tmp_path, end_aligned):
     root = tmp_path / "run"
     expected = write_run(root, GRID, rounds=3, units=2, tasks=4, k=3, steps=(5, 40))
     by_round = {}
@@ -189,7 +194,8 @@ def test_fifo_capacity_keeps_newest_whole_attempts_and_context(tmp_path):
     newest, partial = max(by_round), max(by_round) - 1
     newest_tuples = sum(expected[k][0].length for k in by_round[newest])
     capacity = newest_tuples + sum(expected[k][0].length for k in by_round[partial]) // 2
-    view = BufferReader(root).load_training_view(capacity_tuples=capacity, trajectory_stride=5)
+    view = BufferReader(root).load_training_view(capacity_tuples=capacity, trajectory_stride=5,
+                                                 trajectory_end_aligned=end_aligned)
     kept = view.attempt_keys[view.in_window].tolist()
     kept_rounds = {expected[k][1] for k in kept}
     # the newest round whole, part of the one before, nothing older
@@ -203,7 +209,7 @@ def test_fifo_capacity_keeps_newest_whole_attempts_and_context(tmp_path):
     needed = {c for key in kept for c in _context_keys(expected, key)}
     assert set(context_only.tolist()) == needed - set(kept)
     assert view.rounds == tuple(sorted({expected[k][1] for k in view.attempt_keys.tolist()}))
-    check_view(view, expected, 5)
+    check_view(view, expected, 5, end_aligned)
     again = BufferReader(root).load_training_view(capacity_tuples=capacity, trajectory_stride=5)
     assert np.array_equal(again.attempt_keys, view.attempt_keys)  # the subset is a function of the round
     assert BufferReader(root).load_training_view(capacity_tuples=0).num_tuples == 0

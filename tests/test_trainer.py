@@ -1,12 +1,14 @@
 """The learner's optimiser over flattened parameters, its batch prefetching and its determinism."""
 
 import numpy as np
+import pytest
 import torch
 from torch import nn
 
 from gpl_dist.config import TrainingConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from learner.batches import TensorView
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter, commit_round
 from gpl_dist.records import WorkUnit
@@ -104,3 +106,44 @@ def test_correction_spread_reports_a_dead_correction_module(tmp_path):
     assert "cannot use corrections" in line
     no_corrections = Learner(build_model(get_domain("multiroom"), "instruction_only", seed=0), _cfg())
     assert no_corrections.correction_spread(cond) is None
+
+
+@pytest.mark.parametrize("domain_name,tasks,end_aligned", [("multiroom", (1, 2, 3), False), ("relocation", (0, 7), True),
+                                                         ("multiroom", (1, 2, 3), True)])
+def test_learner_conditions_on_what_the_worker_acted_on(tmp_path, domain_name, tasks, end_aligned):
+    """Collection and training build each attempt's conditioning alike (same trajectory samples).
+
+    The worker's own model records the conditioning of every attempt it rolls out; the learner's
+    batch of the stored tuples, read back from the buffer with the domain's sampling, must encode
+    to the same vectors.
+    """
+    domain = get_domain(domain_name)
+    worker = make_worker(domain_name, num_corrections=2, trajectory_ends_at_last_state=end_aligned)
+    seen: list[torch.Tensor] = []
+    encode = worker.model.encode_conditioning
+    worker.model.encode_conditioning = lambda cond: seen.append(encode(cond)) or seen[-1]
+    unit = WorkUnit(round_index=0, unit_index=0, task_ids=tasks, split="train", seed=3, policy_version=0)
+    attempts = worker.collect(unit.task_ids, unit.split, seed=unit.seed, round_index=0)
+    assert len(seen) == 1 + max(a.attempt_index for a in attempts) and len(seen) > 1
+    # call k conditioned the tasks that made an attempt k, in task order
+    z_worker = {}
+    for k, z in enumerate(seen):
+        active = [a.task_id for a in attempts if a.attempt_index == k]
+        assert z.shape[0] == len(active)
+        z_worker.update({(t, k): z[j] for j, t in enumerate(active)})
+
+    root = tmp_path / "run"
+    commit_round(root, 0, [ShardWriter(root, "r").write_unit(unit, attempts, worker_id="w")])
+    view = BufferReader(root).load_training_view(10**9, domain.trajectory_stride, end_aligned)
+    assert view.trajectories.shape[1] == domain.trajectory_samples
+    tv = TensorView.from_view(view)
+    first_states = torch.from_numpy(np.flatnonzero(view.timesteps == 0))
+    _, _, cond, rows = tv.batch(first_states)
+    with torch.inference_mode():
+        z_learner = encode(cond)
+    for n, state in enumerate(first_states.tolist()):
+        a = view.attempt_rows[state]
+        key = (int(view.task_id[a]), int(view.attempt_index[a]))
+        torch.testing.assert_close(z_learner[rows[n]], z_worker[key], rtol=0, atol=1e-6)
+    last_states = view.observations[view.timesteps == domain.steps_per_attempt - 1]
+    assert np.array_equal(view.trajectories[:, -1], last_states) == end_aligned

@@ -31,7 +31,7 @@ from gpl_dist.experts import make_expert
 from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model, load_numpy_state
 from gpl_dist.records import Attempt, WorkUnit
-from gpl_dist.roles import DomainSpec
+from gpl_dist.roles import DomainSpec, trajectory_times
 from gpl_dist.seeding import derive_rng, derive_seed
 
 log = logging.getLogger(__name__)
@@ -77,6 +77,8 @@ class RolloutSettings:
         embedding_dim: word-embedding size of the model.
         label_states: query the expert for every state (False at meta-test time).
         expert: which of the domain's experts labels the states (``scripted`` or ``learned``).
+        trajectory_ends_at_last_state: how earlier attempts are subsampled for the correction
+            module (``gpl_dist.roles.trajectory_times``).
     """
 
     num_corrections: int = 5
@@ -86,6 +88,7 @@ class RolloutSettings:
     embedding_dim: int = 16
     label_states: bool = True
     expert: str = "scripted"
+    trajectory_ends_at_last_state: bool = False
 
 
 class TaskFailure(RuntimeError):
@@ -181,7 +184,8 @@ class RolloutWorker:
                 self._expert = make_expert(next(e for e in envs if e is not None), s.expert)
             expert = self._expert
         max_attempts = s.num_corrections + 1 if self.model.uses_corrections else 1
-        stride, steps = d.trajectory_stride, d.steps_per_attempt
+        steps = d.steps_per_attempt
+        traj_times = trajectory_times(steps, d.trajectory_stride, s.trajectory_ends_at_last_state)
         # histories[i]: (trajectory (S, *O), correction ids (L,)) of each finished attempt of task i
         histories: list[list[tuple[np.ndarray, np.ndarray]]] = [[] for _ in range(n)]
         instructions: list[str] = [""] * n
@@ -239,7 +243,7 @@ class RolloutWorker:
                     seed=reset_seeds[j], policy_version=self.policy_version,
                     expert_probs=None if probs_buf is None else probs_buf[j],
                 ))
-                histories[i].append((obs_buf[j, ::stride].copy(), corr_ids))
+                histories[i].append((obs_buf[j, traj_times], corr_ids))
                 solved[i] = success
         return [a for per_task in attempts_out for a in per_task]
 

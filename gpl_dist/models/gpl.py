@@ -4,7 +4,8 @@ Three modules:
 
 - **instruction module**: shared word embeddings -> 1-D CNN -> MLP, giving ``z_im``;
 - **correction module**: for every earlier attempt ``j`` of the task, its trajectory subsampled every
-  ``trajectory_stride`` states goes through a per-state encoder and a 1-D CNN over time -> MLP; the
+  ``trajectory_stride`` states (``gpl_dist.roles.trajectory_times``: from t = 0, or ending at the
+  attempt's last state with ``ModelConfig.trajectory_ends_at_last_state``) goes through a per-state encoder and a 1-D CNN over time -> MLP; the
   correction given after it goes through the shared embeddings, a 1-D CNN and an MLP; each
   (trajectory, correction) pair goes through an MLP, and the pairs are averaged: ``z_cm``;
 - **policy module**: state encoder, concatenated with ``z_im`` and ``z_cm`` -> MLP -> action logits.
