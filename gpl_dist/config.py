@@ -71,7 +71,7 @@ class ModelConfig:
     embedding_dim: int = 16
     """Size of the word embeddings shared by the instruction and correction modules."""
     trajectory_ends_at_last_state: bool = False
-    """Subsample earlier attempts every stride-th state ending at their last state (the one the correction describes), not from t = 0."""
+    """Sample earlier attempts every stride-th state ending at their last (the state its correction describes)."""
 
 
 @dataclass(frozen=True)

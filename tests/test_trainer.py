@@ -114,7 +114,7 @@ def test_learner_conditions_on_what_the_worker_acted_on(tmp_path, domain_name, t
     """Collection and training build each attempt's conditioning alike (same trajectory samples).
 
     The worker's own model records the conditioning of every attempt it rolls out; the learner's
-    batch of the stored tuples, read back from the buffer with the domain's sampling, must encode
+    batch of the stored tuples, read back from the buffer with the same anchoring, must encode
     to the same vectors.
     """
     domain = get_domain(domain_name)
