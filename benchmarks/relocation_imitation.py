@@ -158,9 +158,8 @@ def failure_modes(args) -> None:
         raise SystemExit(f"{args.run_dir} is a {cfg.env.domain} run; this benchmark analyses relocation runs")
     model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim)
     model.load_state_dict(ckpt.model_state)
-    settings = RolloutSettings(num_corrections=args.corrections, greedy_actions=False,
-                               correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                               embedding_dim=cfg.model.embedding_dim, label_states=False)
+    settings = RolloutSettings.from_config(cfg, num_corrections=args.corrections, greedy_actions=False,
+                                           label_states=False)
     worker = RolloutWorker(get_domain("relocation"), settings, worker_id="failure-modes")
     worker.set_weights(state_dict_to_numpy(model), ckpt.policy_version)
     test = split_tasks("relocation", "test")[:args.test_tasks]

@@ -41,10 +41,7 @@ log = logging.getLogger(__name__)
 
 def rollout_settings(cfg: RunConfig) -> RolloutSettings:
     """The worker's slice of the config."""
-    return RolloutSettings(num_corrections=cfg.collection.num_corrections, greedy_actions=cfg.collection.greedy_actions,
-                           correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                           embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert,
-                           trajectory_ends_at_last_state=cfg.model.trajectory_ends_at_last_state)
+    return RolloutSettings.from_config(cfg)
 
 
 def buffer_root(cfg: RunConfig, run_dir: Path) -> str:

@@ -69,10 +69,8 @@ def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seed
     tasks = tasks or split_tasks(domain.name, split)
     if max_tasks:
         tasks = tasks[:max_tasks]
-    settings = RolloutSettings(num_corrections=num_corrections, greedy_actions=greedy,
-                               correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                               embedding_dim=cfg.model.embedding_dim, label_states=False,
-                               trajectory_ends_at_last_state=cfg.model.trajectory_ends_at_last_state)
+    settings = RolloutSettings.from_config(cfg, num_corrections=num_corrections, greedy_actions=greedy,
+                                           label_states=False)
     worker = RolloutWorker(domain, settings, worker_id="eval")
     worker.set_weights(weights, 0)
     start = time.perf_counter()

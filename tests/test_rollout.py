@@ -112,3 +112,18 @@ def test_sampled_actions_follow_the_softmax_and_greedy_takes_the_argmax():
     again = sample_actions(logits, np.random.default_rng(0), greedy=False).reshape(-1, 2)
     assert np.array_equal(actions, again)
     assert sample_actions(logits[:2], np.random.default_rng(0), greedy=True).tolist() == [2, 0]
+
+
+def test_settings_from_config_carry_the_run_and_the_overrides():
+    from pathlib import Path
+
+    from gpl_dist.config import load_config
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "relocation.yaml", {"collection.num_corrections": "3"})
+    s = RolloutSettings.from_config(cfg)
+    assert (s.num_corrections, s.expert, s.trajectory_ends_at_last_state, s.variant) == (3, "learned", True, "gpl")
+    meta_test = RolloutSettings.from_config(cfg, num_corrections=5, greedy_actions=True, label_states=False)
+    assert (meta_test.num_corrections, meta_test.greedy_actions, meta_test.label_states) == (5, True, False)
+    assert meta_test.trajectory_ends_at_last_state  # evaluation conditions the policy as collection did
+    with pytest.raises(TypeError):
+        RolloutSettings.from_config(cfg, not_a_setting=1)

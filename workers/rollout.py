@@ -19,7 +19,7 @@ import logging
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -89,6 +89,19 @@ class RolloutSettings:
     label_states: bool = True
     expert: str = "scripted"
     trajectory_ends_at_last_state: bool = False
+
+    @classmethod
+    def from_config(cls, cfg: Any, **overrides: Any) -> "RolloutSettings":
+        """The worker's slice of a ``RunConfig``; ``overrides`` replace fields (meta-test, analyses).
+
+        The one place that maps config fields to worker settings, so collection, evaluation and
+        analyses of a run cannot disagree on how its policy was conditioned.
+        """
+        settings = cls(num_corrections=cfg.collection.num_corrections, greedy_actions=cfg.collection.greedy_actions,
+                       correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
+                       embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert,
+                       trajectory_ends_at_last_state=cfg.model.trajectory_ends_at_last_state)
+        return replace(settings, **overrides)
 
 
 class TaskFailure(RuntimeError):
