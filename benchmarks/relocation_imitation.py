@@ -156,7 +156,8 @@ def failure_modes(args) -> None:
     cfg = config_from_dict(ckpt.config, f"{args.run_dir}/config.yaml")
     if cfg.env.domain != "relocation":
         raise SystemExit(f"{args.run_dir} is a {cfg.env.domain} run; this benchmark analyses relocation runs")
-    model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim)
+    model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim,
+                        policy_batchnorm=cfg.model.policy_batchnorm)
     model.load_state_dict(ckpt.model_state)
     settings = RolloutSettings.from_config(cfg, num_corrections=args.corrections, greedy_actions=False,
                                            label_states=False)

@@ -12,7 +12,8 @@ import sys
 from pathlib import Path
 
 
-def _overrides(pairs: list[str]) -> dict[str, str]:
+def parse_overrides(pairs: list[str]) -> dict[str, str]:
+    """``--set KEY=VALUE`` arguments as the dotted-key mapping ``load_config`` applies."""
     out = {}
     for pair in pairs:
         if "=" not in pair:
@@ -40,7 +41,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from gpl_dist.config import load_config
     from learner.driver import run_training
 
-    overrides = _overrides(args.set)
+    overrides = parse_overrides(args.set)
     if args.num_workers is not None:
         overrides["collection.num_workers"] = str(args.num_workers)
     config_path = args.config

@@ -72,6 +72,8 @@ class ModelConfig:
     """Size of the word embeddings shared by the instruction and correction modules."""
     trajectory_ends_at_last_state: bool = False
     """Sample earlier attempts every stride-th state ending at their last (the state its correction describes)."""
+    policy_batchnorm: bool = False
+    """BatchNorm1d after every hidden layer of the policy module's MLP (the authors' code has it)."""
 
 
 @dataclass(frozen=True)

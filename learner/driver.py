@@ -126,7 +126,8 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
 
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
-    model = build_model(domain, cfg.model.variant, cfg.model.embedding_dim, seed=cfg.seed)
+    model = build_model(domain, cfg.model.variant, cfg.model.embedding_dim, seed=cfg.seed,
+                        policy_batchnorm=cfg.model.policy_batchnorm)
     learner = Learner(model, cfg.training, seed=cfg.seed)
     start_round, history = 0, []
     if resume and (ckpt_dir / "latest.pt").exists():

@@ -144,7 +144,8 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     run_dir = Path(run_dir)
     ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
     cfg = config_from_dict(ckpt.config, str(run_dir / "config.yaml"))
-    model = build_model(get_domain(cfg.env.domain), cfg.model.variant, cfg.model.embedding_dim)
+    model = build_model(get_domain(cfg.env.domain), cfg.model.variant, cfg.model.embedding_dim,
+                        policy_batchnorm=cfg.model.policy_batchnorm)
     model.load_state_dict(ckpt.model_state)
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split

@@ -206,3 +206,32 @@ def test_channel_groups_cover_every_channel_once_within_the_row_limit():
     assert [c for g in groups for c in g] == list(range(len(cats)))
     assert all(np.prod([cats[c] for c in g]) <= 1024 for g in groups)
     assert channel_groups((5000, 3)) == [(0,), (1,)]  # a channel larger than the limit stands alone
+
+
+def test_policy_batchnorm_is_opt_in_and_acts_per_state_at_rollout_time():
+    d = get_domain("relocation")
+    plain = build_model(d, seed=0)
+    normed = build_model(d, seed=0, policy_batchnorm=True)
+    count = lambda m: sum(isinstance(x, torch.nn.BatchNorm1d) for x in m.head.modules())  # noqa: E731
+    assert count(plain) == 0 and count(normed) == 3  # one per hidden layer of MLP(256, 256, 256)
+    # runs saved without the field were trained without it; the two architectures never mix silently
+    with pytest.raises(RuntimeError):
+        normed.load_state_dict(plain.state_dict())
+    # a few training steps move the running statistics away from their initial (0, 1)
+    opt = torch.optim.Adam(normed.parameters(), lr=1e-3)
+    cond = random_conditioning(d, a=6, k=3)
+    rows = torch.arange(48) % 6
+    for step in range(5):
+        loss = normed(random_obs(d, 48, seed=step), cond, rows).logsumexp(1).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert not torch.allclose(normed.head[0][1].running_mean, torch.zeros(256))
+    # in eval mode a state's action distribution must not depend on which other states share its
+    # batch (workers batch over whatever tasks are still running)
+    normed.eval()
+    obs = random_obs(d, 48, seed=9)
+    with torch.no_grad():
+        together = normed(obs, cond, rows)
+        alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(48)])
+    torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)

@@ -122,6 +122,11 @@ def test_settings_from_config_carry_the_run_and_the_overrides():
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "relocation.yaml", {"collection.num_corrections": "3"})
     s = RolloutSettings.from_config(cfg)
     assert (s.num_corrections, s.expert, s.trajectory_ends_at_last_state, s.variant) == (3, "learned", True, "gpl")
+    assert s.policy_batchnorm
+    # the worker builds the learner's architecture: the driver's weights load strictly
+    learner_model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim, seed=0,
+                                policy_batchnorm=cfg.model.policy_batchnorm)
+    RolloutWorker(get_domain("relocation"), s, worker_id="test").set_weights(state_dict_to_numpy(learner_model), 0)
     meta_test = RolloutSettings.from_config(cfg, num_corrections=5, greedy_actions=True, label_states=False)
     assert (meta_test.num_corrections, meta_test.greedy_actions, meta_test.label_states) == (5, True, False)
     assert meta_test.trajectory_ends_at_last_state  # evaluation conditions the policy as collection did

@@ -75,6 +75,7 @@ class RolloutSettings:
         correction_kind: correction oracle variant.
         variant: model variant (decides the instruction text and whether corrections are used).
         embedding_dim: word-embedding size of the model.
+        policy_batchnorm: whether the model's policy MLP has BatchNorm layers.
         label_states: query the expert for every state (False at meta-test time).
         expert: which of the domain's experts labels the states (``scripted`` or ``learned``).
         trajectory_ends_at_last_state: how earlier attempts are subsampled for the correction
@@ -86,6 +87,7 @@ class RolloutSettings:
     correction_kind: str = "default"
     variant: str = "gpl"
     embedding_dim: int = 16
+    policy_batchnorm: bool = False
     label_states: bool = True
     expert: str = "scripted"
     trajectory_ends_at_last_state: bool = False
@@ -99,7 +101,8 @@ class RolloutSettings:
         """
         settings = cls(num_corrections=cfg.collection.num_corrections, greedy_actions=cfg.collection.greedy_actions,
                        correction_kind=cfg.env.correction_kind, variant=cfg.model.variant,
-                       embedding_dim=cfg.model.embedding_dim, expert=cfg.env.expert,
+                       embedding_dim=cfg.model.embedding_dim, policy_batchnorm=cfg.model.policy_batchnorm,
+                       expert=cfg.env.expert,
                        trajectory_ends_at_last_state=cfg.model.trajectory_ends_at_last_state)
         return replace(settings, **overrides)
 
@@ -149,7 +152,8 @@ class RolloutWorker:
         self.settings = settings
         self.writer = writer
         self.worker_id = worker_id
-        self.model: GPLPolicy = build_model(domain, settings.variant, settings.embedding_dim)
+        self.model: GPLPolicy = build_model(domain, settings.variant, settings.embedding_dim,
+                                                policy_batchnorm=settings.policy_batchnorm)
         self.model.eval()
         self.policy_version = -1
         self._corrector = make_corrector(domain.name, settings.correction_kind)

@@ -94,11 +94,16 @@ class Conditioning:
                               (self.instruction_ids, self.trajectories, self.correction_ids, self.slots)))
 
 
-def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True) -> tuple[nn.Sequential, int]:
+def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
+        batchnorm: bool = False) -> tuple[nn.Sequential, int]:
+    """Linear layers of ``sizes``, ReLU between them (and after the last with ``final_activation``);
+    ``batchnorm`` puts a BatchNorm1d after every linear layer."""
     layers: list[nn.Module] = []
     d = in_dim
     for i, h in enumerate(sizes):
         layers.append(nn.Linear(d, h))
+        if batchnorm:
+            layers.append(nn.BatchNorm1d(h))
         if final_activation or i < len(sizes) - 1:
             layers.append(nn.ReLU())
         d = h
@@ -342,7 +347,8 @@ class TrajectoryEncoder(nn.Module):
 class GPLPolicy(nn.Module):
     """The GPL network for one domain; ``variant`` selects the paper's baselines and ablations."""
 
-    def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16):
+    def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
+                 policy_batchnorm: bool = False):
         super().__init__()
         self.domain_name = domain.name
         self.variant = variant
@@ -359,7 +365,7 @@ class GPLPolicy(nn.Module):
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         self.conditioning_dim = self.instruction.out_dim + pair_dim
-        head, head_dim = mlp(sizes.policy_mlp, self.state.out_dim + self.conditioning_dim)
+        head, head_dim = mlp(sizes.policy_mlp, self.state.out_dim + self.conditioning_dim, batchnorm=policy_batchnorm)
         self.head = nn.Sequential(head, nn.Linear(head_dim, domain.num_actions))
 
     @property
@@ -397,13 +403,14 @@ class GPLPolicy(nn.Module):
         return self.action_logits(obs, z[attempt_rows])
 
 
-def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None) -> GPLPolicy:
+def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
+                policy_batchnorm: bool = False) -> GPLPolicy:
     """A freshly initialised model (deterministic when ``seed`` is given)."""
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            return GPLPolicy(domain, variant, embedding_dim)
-    return GPLPolicy(domain, variant, embedding_dim)
+            return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm)
+    return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
