@@ -148,7 +148,7 @@ def privileged_dagger(args) -> None:
 def failure_modes(args) -> None:
     from gpl_dist.config import config_from_dict
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+    from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
     from learner.checkpoint import load_checkpoint
     from workers.rollout import RolloutSettings, RolloutWorker
 
@@ -156,8 +156,7 @@ def failure_modes(args) -> None:
     cfg = config_from_dict(ckpt.config, f"{args.run_dir}/config.yaml")
     if cfg.env.domain != "relocation":
         raise SystemExit(f"{args.run_dir} is a {cfg.env.domain} run; this benchmark analyses relocation runs")
-    model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim,
-                        policy_batchnorm=cfg.model.policy_batchnorm)
+    model = build_model_from_config(get_domain("relocation"), cfg.model)
     model.load_state_dict(ckpt.model_state)
     settings = RolloutSettings.from_config(cfg, num_corrections=args.corrections, greedy_actions=False,
                                            label_states=False)

@@ -32,7 +32,7 @@ import torch
 from gpl_dist.cli import parse_overrides
 from gpl_dist.config import ConfigError, config_to_dict, load_config, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
 from learner.checkpoint import Checkpoint, capture_rng, load_checkpoint, save_checkpoint
 from learner.driver import buffer_root
 from learner.evaluate import evaluate_policy, format_table
@@ -57,8 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     domain = get_domain(cfg.env.domain)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
-    model = build_model(domain, cfg.model.variant, cfg.model.embedding_dim, seed=cfg.seed,
-                        policy_batchnorm=cfg.model.policy_batchnorm)
+    model = build_model_from_config(domain, cfg.model, seed=cfg.seed)
     learner = Learner(model, cfg.training, seed=cfg.seed)
     if args.from_checkpoint:
         ckpt = load_checkpoint(args.from_checkpoint)
@@ -70,7 +69,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     view = BufferReader(buffer_root(cfg, run_dir)).load_training_view(
         cfg.buffer.capacity_tuples, domain.trajectory_stride, cfg.model.trajectory_ends_at_last_state)
-    print(f"loaded {len(view.observations):,} tuples in {time.perf_counter() - t0:.1f} s", flush=True)
+    print(f"loaded {view.num_tuples:,} tuples in {time.perf_counter() - t0:.1f} s", flush=True)
     stats = learner.train_round(view, lambda e, loss, acc: print(f"epoch {e}: loss {loss:.4f} accuracy {acc:.3f}",
                                                                   flush=True))
     print(f"trained {cfg.training.num_epochs_per_round} epochs in {stats.seconds:.0f} s", flush=True)

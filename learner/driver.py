@@ -27,7 +27,7 @@ from gpl_dist.config import RunConfig, config_to_dict, save_config
 from gpl_dist.domains import get_domain
 from gpl_dist.experts import check_expert_kind
 from gpl_dist.metrics import completion_by_corrections
-from gpl_dist.models.gpl import build_model
+from gpl_dist.models.gpl import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
@@ -126,8 +126,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
 
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
-    model = build_model(domain, cfg.model.variant, cfg.model.embedding_dim, seed=cfg.seed,
-                        policy_batchnorm=cfg.model.policy_batchnorm)
+    model = build_model_from_config(domain, cfg.model, seed=cfg.seed)
     learner = Learner(model, cfg.training, seed=cfg.seed)
     start_round, history = 0, []
     if resume and (ckpt_dir / "latest.pt").exists():

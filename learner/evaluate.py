@@ -23,7 +23,7 @@ import numpy as np
 
 from gpl_dist.config import RunConfig, config_from_dict
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import load_checkpoint
@@ -144,8 +144,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     run_dir = Path(run_dir)
     ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
     cfg = config_from_dict(ckpt.config, str(run_dir / "config.yaml"))
-    model = build_model(get_domain(cfg.env.domain), cfg.model.variant, cfg.model.embedding_dim,
-                        policy_batchnorm=cfg.model.policy_batchnorm)
+    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model)
     model.load_state_dict(ckpt.model_state)
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split

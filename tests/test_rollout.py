@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.gpl import build_model, build_model_from_config, state_dict_to_numpy
 from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
 
 TASKS = (0, 5, 17, 400)
@@ -124,8 +124,7 @@ def test_settings_from_config_carry_the_run_and_the_overrides():
     assert (s.num_corrections, s.expert, s.trajectory_ends_at_last_state, s.variant) == (3, "learned", True, "gpl")
     assert s.policy_batchnorm
     # the worker builds the learner's architecture: the driver's weights load strictly
-    learner_model = build_model(get_domain("relocation"), cfg.model.variant, cfg.model.embedding_dim, seed=0,
-                                policy_batchnorm=cfg.model.policy_batchnorm)
+    learner_model = build_model_from_config(get_domain("relocation"), cfg.model, seed=0)
     RolloutWorker(get_domain("relocation"), s, worker_id="test").set_weights(state_dict_to_numpy(learner_model), 0)
     meta_test = RolloutSettings.from_config(cfg, num_corrections=5, greedy_actions=True, label_states=False)
     assert (meta_test.num_corrections, meta_test.greedy_actions, meta_test.label_states) == (5, True, False)

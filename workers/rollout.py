@@ -153,7 +153,7 @@ class RolloutWorker:
         self.writer = writer
         self.worker_id = worker_id
         self.model: GPLPolicy = build_model(domain, settings.variant, settings.embedding_dim,
-                                                policy_batchnorm=settings.policy_batchnorm)
+                                            policy_batchnorm=settings.policy_batchnorm)
         self.model.eval()
         self.policy_version = -1
         self._corrector = make_corrector(domain.name, settings.correction_kind)

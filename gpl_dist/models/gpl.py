@@ -413,6 +413,13 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
     return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm)
 
 
+def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = None) -> GPLPolicy:
+    """The model a run's ``model`` section (``gpl_dist.config.ModelConfig``) describes: the one
+    mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
+    return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
+                       policy_batchnorm=model_cfg.policy_batchnorm)
+
+
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
     """Weights as plain numpy arrays: cheap to ``ray.put`` and safe to ship (no pickled code)."""
     return {k: v.detach().cpu().numpy().copy() for k, v in model.state_dict().items()}
