@@ -39,11 +39,6 @@ from workers.rollout import RolloutSettings
 log = logging.getLogger(__name__)
 
 
-def rollout_settings(cfg: RunConfig) -> RolloutSettings:
-    """The worker's slice of the config."""
-    return RolloutSettings.from_config(cfg)
-
-
 def buffer_root(cfg: RunConfig, run_dir: Path) -> str:
     return cfg.buffer.location or str(run_dir / "buffer")
 
@@ -122,7 +117,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     root = buffer_root(cfg, run_dir)
     run_id = run_dir.name
     tasks = training_tasks(cfg)
-    settings = rollout_settings(cfg)
+    settings = RolloutSettings.from_config(cfg)
 
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))

@@ -307,9 +307,10 @@ class BufferReader:
 
         stride, end_aligned = int(trajectory_stride), bool(trajectory_end_aligned)
         # attempts share a handful of lengths: one index array per length
-        times_of = {int(n): trajectory_times(int(n), stride, end_aligned) for n in np.unique(lengths)}
+        unique_lengths, length_index = np.unique(lengths, return_inverse=True)
+        times_of = {int(n): trajectory_times(int(n), stride, end_aligned) for n in unique_lengths}
         times = lambda length: times_of[int(length)]  # noqa: E731
-        t_len = -(-lengths // stride)
+        t_len = np.array([len(times_of[int(n)]) for n in unique_lengths], dtype=np.int64)[length_index.reshape(-1)]
         s_max = max(1, int(t_len.max()) if len(t_len) else 1)
         trajectories = np.zeros((len(sel), s_max, *obs_shape), obs_dtype)
 

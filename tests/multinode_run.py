@@ -53,7 +53,8 @@ def main(mode: str, work: Path) -> None:
     from gpl_dist.config import config_from_dict
     from gpl_dist.domains import get_domain
     from learner.distributed import RayCollector
-    from learner.driver import buffer_root, rollout_settings, run_training
+    from learner.driver import buffer_root, run_training
+    from workers.rollout import RolloutSettings
 
     temp_dir = os.path.join(os.environ["RAY_TMPDIR"], "ray")  # where Ray itself looks (ray_current_cluster)
     os.makedirs(temp_dir, exist_ok=True)
@@ -70,7 +71,7 @@ def main(mode: str, work: Path) -> None:
         cluster.wait_for_nodes()
         cfg = config_from_dict(yaml.safe_load(TINY_YAML))
         run_dir = work / "run"
-        collector = RayCollector(get_domain(cfg.env.domain).name, rollout_settings(cfg), buffer_root(cfg, run_dir),
+        collector = RayCollector(get_domain(cfg.env.domain).name, RolloutSettings.from_config(cfg), buffer_root(cfg, run_dir),
                                  run_dir.name, cfg.collection.num_workers, cluster.address, cfg.collection.max_unit_retries)
         import ray
 
