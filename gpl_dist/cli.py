@@ -1,7 +1,10 @@
-"""The ``gpl-dist`` command: train, eval, render, inspect, clean.
+"""The ``gpl-dist`` command: train, eval, render, inspect, verify, clean.
 
 Heavy imports (torch, Ray, storage) happen inside each subcommand so ``gpl-dist --help`` is fast.
-Expected errors (bad config, missing run, bad task id) print one line and exit with status 2.
+One error path: every expected failure (``gpl_dist.errors.UserError``: config, storage integrity,
+checkpoint, device, run dir, usage; and the ``ValueError``/``FileNotFoundError`` of a bad argument)
+prints one line naming the problem and exits with status 2 (``-v`` adds its traceback). Anything
+else is a bug and prints its traceback.
 """
 
 from __future__ import annotations
@@ -9,6 +12,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import traceback
 from pathlib import Path
 
 
@@ -24,17 +28,22 @@ def parse_overrides(pairs: list[str]) -> dict[str, str]:
 
 
 def _buffer_root(path: str) -> str:
-    """A run dir's buffer root (its config may point elsewhere), or ``path`` itself."""
+    """A run dir's buffer root (its config may point elsewhere), or ``path`` itself when it is a
+    buffer; ``RunDirError`` when ``path`` holds neither."""
+    from gpl_dist.errors import RunDirError
+    from storage.manifest import is_buffer
+
     p = Path(path)
     if (p / "config.yaml").is_file():
         from gpl_dist.config import load_config
         location = load_config(p / "config.yaml").buffer.location
         return location or str(p / "buffer")
-    if "://" in path:
-        return path
-    if not p.exists():
-        raise FileNotFoundError(f"no run directory or buffer at {path}")
-    return str(p / "buffer") if (p / "buffer").is_dir() else str(p)
+    if "://" not in path and not p.exists():
+        raise RunDirError(f"no run directory or buffer at {path}")
+    for candidate in ([path] if "://" in path else [str(p / "buffer"), path]):
+        if is_buffer(candidate):
+            return candidate
+    raise RunDirError(f"{path} holds no gpl-dist run or buffer (no config.yaml, manifests/ or _gpl-dist-buffer.json)")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -61,10 +70,21 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
+    from gpl_dist.errors import UsageError
+
+    if text is None:
+        return None
+    try:
+        return tuple(int(s) for s in text.split(","))
+    except ValueError:
+        raise UsageError(f"--seeds takes comma-separated integers (e.g. 0,1,2), got '{text[:80]}'") from None
+
+
 def cmd_eval(args: argparse.Namespace) -> int:
     from learner.evaluate import format_table, evaluate_run
 
-    seeds = tuple(int(s) for s in args.seeds.split(",")) if args.seeds else None
+    seeds = _parse_seeds(args.seeds)
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
                                 max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
     import json
@@ -85,21 +105,61 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_problems(report) -> None:
+    for p in report.problems:
+        print(f"BAD  {p.path}: {p.message}")
+
+
 def cmd_inspect(args: argparse.Namespace) -> int:
     from storage import format_inspection
+    from storage.verify import verify_buffer
 
-    print(format_inspection(_buffer_root(args.run_dir), show_tasks=args.tasks))
+    root = _buffer_root(args.run_dir)
+    report = verify_buffer(root, checksums=not args.no_verify)
+    _print_problems(report)
+    report.raise_if_bad(f"run gpl-dist verify {args.run_dir} for the list and docs/buffer.md (Recovering)")
+    print(format_inspection(root, show_tasks=args.tasks))
     return 0
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    from storage.lease import Lease
+    from storage.verify import quarantine_round, verify_buffer
+
+    root = _buffer_root(args.run_dir)
+    report = verify_buffer(root)
+    _print_problems(report)
+    quarantined = f", quarantined rounds {list(report.quarantined)}" if report.quarantined else ""
+    print(f"checked {report.num_files} committed files ({report.num_bytes / 2**20:.1f} MiB) of rounds "
+          f"{list(report.rounds)}{quarantined}: {len(report.problems)} problem(s)")
+    if report.ok:
+        return 0
+    if args.quarantine:
+        with Lease(root, "gpl-dist verify --quarantine"):
+            for r in report.bad_rounds:
+                moved = quarantine_round(root, r)
+                print(f"quarantined round {r}: moved {', '.join(moved)} under quarantine/")
+        print("resume with: gpl-dist train --run-dir RUN_DIR --resume (rounds after the last checkpoint are collected again)")
+        return 0
+    print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
+          "(set them aside with --quarantine; see docs/buffer.md, Recovering)", file=sys.stderr)
+    return 2
 
 
 def cmd_clean(args: argparse.Namespace) -> int:
     from storage import clean_leftovers
+    from storage.verify import verify_buffer
 
-    removed = clean_leftovers(_buffer_root(args.run_dir), dry_run=args.dry_run)
+    root = _buffer_root(args.run_dir)
+    removed = clean_leftovers(root, dry_run=args.dry_run)
     verb = "would remove" if args.dry_run else "removed"
     for path in removed:
         print(f"{verb} {path}")
     print(f"{verb} {len(removed)} leftover file(s)")
+    unlisted = [p for p in verify_buffer(root, checksums=False).problems if p.path.startswith("data/")]
+    if unlisted:
+        print(f"kept {len(unlisted)} path(s) under data/ that no manifest lists (clean never removes committed "
+              f"data); see gpl-dist verify {args.run_dir}")
     return 0
 
 
@@ -143,12 +203,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_render)
 
-    p = sub.add_parser("inspect", help="summarise a run's committed buffer")
+    p = sub.add_parser("inspect", help="summarise a run's committed buffer (after verifying it)")
     p.add_argument("run_dir")
     p.add_argument("--tasks", action="store_true", help="add a per-task table")
+    p.add_argument("--no-verify", action="store_true", help="compare file sizes only, not sha256 checksums")
     p.set_defaults(func=cmd_inspect)
 
-    p = sub.add_parser("clean", help="remove leftovers of dead writers (never committed data)")
+    p = sub.add_parser("verify", help="check every committed file against its manifest; name each bad one")
+    p.add_argument("run_dir")
+    p.add_argument("--quarantine", action="store_true",
+                   help="move bad rounds under quarantine/ (nothing deleted) so that --resume can collect them again")
+    p.set_defaults(func=cmd_verify)
+
+    p = sub.add_parser("clean", help="remove leftovers of dead writers (never committed data; never during a run)")
     p.add_argument("run_dir")
     p.add_argument("--dry-run", action="store_true")
     p.set_defaults(func=cmd_clean)
@@ -159,13 +226,19 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    from gpl_dist.config import ConfigError
+    from gpl_dist.errors import UserError
 
     try:
         return args.func(args)
-    except (ConfigError, ValueError, FileNotFoundError, FileExistsError) as err:
-        print(f"gpl-dist: error: {err}", file=sys.stderr)
+    except (UserError, ValueError, FileNotFoundError, FileExistsError) as err:
+        if args.verbose:
+            traceback.print_exc()
+        message = " ".join(str(err).split())  # one line, whatever the message held
+        print(f"gpl-dist: error: {message}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("gpl-dist: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

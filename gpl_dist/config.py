@@ -21,8 +21,10 @@ from typing import Any, Mapping
 
 import yaml
 
+from gpl_dist.errors import UserError
 
-class ConfigError(ValueError):
+
+class ConfigError(UserError, ValueError):
     """A config file or override is invalid; the message is one line naming the culprit."""
 
 
@@ -36,8 +38,8 @@ class EnvConfig:
     """Use only the first N tasks of the training split (0 uses all of them)."""
     task_ids: tuple[int, ...] = ()
     """Meta-train on exactly these task ids instead of the training split (empty uses the split)."""
-    correction_kind: str = "subgoal"
-    """Correction oracle variant (multiroom: subgoal, directional, binary, all; relocation: mixed)."""
+    correction_kind: str = "default"
+    """Correction oracle variant: default (the domain's paper oracle) or a kind the domain lists."""
     expert: str = "scripted"
     """Expert that labels visited states: scripted, or learned (relocation: a PPO-tuned MLP, as the authors')."""
 
@@ -215,7 +217,10 @@ def _set_override(tree: dict, dotted: str, raw: str) -> None:
         node = node.setdefault(key, {})
         if not isinstance(node, dict):
             raise ConfigError(f"override {dotted}: '{key}' is not a section")
-    node[keys[-1]] = yaml.safe_load(raw)
+    try:
+        node[keys[-1]] = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise ConfigError(f"override {dotted}={raw!r}: the value is not valid YAML") from None
 
 
 def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | None = None) -> RunConfig:
@@ -241,29 +246,70 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
 
 
 _VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction")
+_DEVICES = ("auto", "cpu", "cuda")
+
+
+def _one_of(key: str, value: str, choices: tuple[str, ...], scope: str = "") -> tuple[bool, str]:
+    return value in choices, f"{key} must be one of {', '.join(choices)}{scope}, got '{value}'"
 
 
 def validate(cfg: RunConfig, source: str = "<config>") -> None:
-    """Range checks that types alone do not catch."""
+    """Range and choice checks that types alone do not catch; the first failure raises ``ConfigError``.
+
+    Choices that depend on the domain (correction kind, expert, splits, task ids) are checked
+    against the domain's own tables, so a misspelt or domain-foreign value fails here, in one line,
+    before anything is started or written.
+    """
+    from gpl_dist.domains import DOMAIN_NAMES
+
     checks = [
-        (cfg.env.domain in ("multiroom", "relocation"), f"env.domain must be multiroom or relocation, got '{cfg.env.domain}'"),
-        (cfg.model.variant in _VARIANTS, f"model.variant must be one of {', '.join(_VARIANTS)}, got '{cfg.model.variant}'"),
+        _one_of("env.domain", cfg.env.domain, DOMAIN_NAMES),
+        _one_of("model.variant", cfg.model.variant, _VARIANTS),
+        _one_of("training.device", cfg.training.device, _DEVICES),
+        (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
         (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
         (cfg.collection.num_corrections >= 0, "collection.num_corrections must be >= 0"),
         (cfg.collection.tasks_per_unit >= 1, "collection.tasks_per_unit must be at least 1"),
+        (cfg.collection.max_unit_retries >= 0, "collection.max_unit_retries must be >= 0"),
         (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
+        (cfg.model.embedding_dim >= 1, "model.embedding_dim must be at least 1"),
         (cfg.training.num_rounds >= 1, "training.num_rounds must be at least 1"),
         (cfg.training.num_epochs_per_round >= 0, "training.num_epochs_per_round must be >= 0"),
         (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),
         (cfg.training.batch_size >= 1, "training.batch_size must be at least 1"),
         (cfg.training.states_per_chunk >= 1, "training.states_per_chunk must be at least 1"),
-        (cfg.training.device in ("auto", "cpu", "cuda"), f"training.device must be auto, cpu or cuda, got '{cfg.training.device}'"),
+        (cfg.training.num_threads >= 0, "training.num_threads must be >= 0 (0 leaves torch's default)"),
         (cfg.eval.num_corrections >= 0, "eval.num_corrections must be >= 0"),
         (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),
+        (cfg.eval.max_tasks >= 0, "eval.max_tasks must be >= 0 (0 evaluates every task of the split)"),
     ]
     for ok, message in checks:
         if not ok:
             raise ConfigError(f"{source}: {message}")
+    for ok, message in _domain_checks(cfg):
+        if not ok:
+            raise ConfigError(f"{source}: {message}")
+
+
+def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
+    from gpl_dist.corrections import correction_kinds
+    from gpl_dist.domains import get_domain
+    from gpl_dist.experts import expert_kinds
+    from gpl_dist.splits import load_splits
+
+    domain = cfg.env.domain
+    scope = f" for {domain}"
+    splits = tuple(sorted(load_splits(domain)))
+    num_tasks = get_domain(domain).num_tasks
+    bad_ids = [t for t in cfg.env.task_ids if not 0 <= t < num_tasks]
+    return [
+        _one_of("env.correction_kind", cfg.env.correction_kind, correction_kinds(domain), scope),
+        _one_of("env.expert", cfg.env.expert, expert_kinds(domain), scope),
+        _one_of("env.train_split", cfg.env.train_split, splits, scope),
+        _one_of("eval.split", cfg.eval.split, splits, scope),
+        (not bad_ids, f"env.task_ids {bad_ids[:5]} are outside {domain}'s tasks 0..{num_tasks - 1}"),
+        (len(set(cfg.env.task_ids)) == len(cfg.env.task_ids), "env.task_ids must not repeat a task"),
+    ]
 
 
 def config_to_dict(cfg: Any) -> dict:

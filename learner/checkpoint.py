@@ -7,6 +7,7 @@ tensors and plain Python values only, never code.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from dataclasses import dataclass
@@ -15,6 +16,8 @@ from typing import Any
 
 import numpy as np
 import torch
+
+from gpl_dist.errors import CheckpointError
 
 LATEST = "latest.pt"
 
@@ -82,11 +85,31 @@ def save_checkpoint(directory: str | os.PathLike, ckpt: Checkpoint, keep_round_c
 
 
 def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
-    """Load a checkpoint file or the latest one in a directory (``weights_only=True``)."""
+    """Load a checkpoint file or the latest one in a directory (``weights_only=True``).
+
+    Raises ``CheckpointError`` naming the file when it is missing, is not a torch file of plain
+    values and tensors (a pickle of code is refused, never run), or lacks a checkpoint's fields.
+    """
     p = Path(path)
     if p.is_dir():
         p = p / LATEST
     if not p.is_file():
-        raise FileNotFoundError(f"no checkpoint at {p}")
-    raw = torch.load(p, map_location="cpu", weights_only=True)
+        raise CheckpointError(f"no checkpoint at {p}")
+    try:
+        raw = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as err:  # noqa: BLE001 - torch raises many types for a bad file; its text suggests unsafe loading
+        raise CheckpointError(f"{p} is not a readable gpl-dist checkpoint ({type(err).__name__})") from None
+    fields = {f.name for f in dataclasses.fields(Checkpoint)}
+    if not isinstance(raw, dict) or set(raw) != fields:
+        have = sorted(raw) if isinstance(raw, dict) else type(raw).__name__
+        raise CheckpointError(f"{p} is not a gpl-dist checkpoint (holds {have})")
     return Checkpoint(**raw)
+
+
+def load_model_state(model: torch.nn.Module, ckpt: Checkpoint, source: str | os.PathLike) -> None:
+    """Load ``ckpt``'s weights into ``model``; ``CheckpointError`` when they belong to another architecture."""
+    try:
+        model.load_state_dict(ckpt.model_state)
+    except (RuntimeError, KeyError, TypeError) as err:
+        first = str(err).strip().splitlines()[0][:200]
+        raise CheckpointError(f"{source} does not fit this run's model (another variant or size?): {first}") from None

@@ -23,6 +23,7 @@ import logging
 import os
 import time
 from collections import deque
+from contextlib import contextmanager
 from collections.abc import Callable, Sequence
 
 import ray
@@ -61,21 +62,50 @@ class RolloutActor:
         return os.getpid()
 
 
-def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None) -> bool:
-    """Start or join Ray; returns True when this call started a local cluster (and owns it)."""
+#: Ray's switch for single-machine clusters. Off, every process of a local cluster advertises and
+#: binds the loopback address (Ray resolves an explicit ``_node_ip_address="127.0.0.1"`` to the
+#: machine's address and then listens on every interface).
+_LOCAL_ONLY_ENV = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"
+
+
+@contextmanager
+def _loopback_only():
+    """Start Ray's processes with the single-machine switch off, then restore it.
+
+    Ray's children (GCS, raylet, and through the raylet every worker) inherit the environment; the
+    driver read the switch when it imported Ray, so its constant is set too. Both are restored so
+    that a later ``ray.init(address=...)`` in this process, or a ``ray start`` it spawns, can join
+    a multi-node cluster.
+    """
+    from ray._private import ray_constants
+
+    before_env, before_const = os.environ.get(_LOCAL_ONLY_ENV), ray_constants.ENABLE_RAY_CLUSTER
+    os.environ[_LOCAL_ONLY_ENV] = "0"
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    try:
+        yield
+    finally:
+        ray_constants.ENABLE_RAY_CLUSTER = before_const
+        if before_env is None:
+            os.environ.pop(_LOCAL_ONLY_ENV, None)
+        else:
+            os.environ[_LOCAL_ONLY_ENV] = before_env
+
+
+def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None, **kwargs) -> bool:
+    """Start or join Ray; returns True when this call started a local cluster (and owns it).
+
+    A local cluster listens on loopback only (every GCS, raylet, object manager, worker and agent
+    socket; ``tests/test_fault_tolerance.py`` reads them). ``kwargs`` go to ``ray.init``.
+    """
     if ray.is_initialized():
         return False
     if address:
-        ray.init(address=address, log_to_driver=True)
+        ray.init(address=address, log_to_driver=True, **kwargs)
         return False
-    ray.init(
-        num_cpus=max(num_workers, os.cpu_count() or 1),
-        include_dashboard=False,
-        # Local clusters listen on loopback only.
-        _node_ip_address="127.0.0.1",
-        _temp_dir=temp_dir,
-        log_to_driver=True,
-    )
+    with _loopback_only():
+        ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,
+                 **{"log_to_driver": True, **kwargs})
     return True
 
 

@@ -17,23 +17,30 @@ from __future__ import annotations
 import json
 import logging
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from gpl_dist.config import RunConfig, config_to_dict, save_config
+from gpl_dist.config import ConfigError, RunConfig, config_to_dict, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.experts import check_expert_kind
+from gpl_dist.errors import RunDirError
 from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import Checkpoint, capture_rng, load_checkpoint, restore_rng, save_checkpoint
+from learner.checkpoint import (LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng,
+                                save_checkpoint)
 from learner.collectors import SerialCollector, UnitResult
-from learner.trainer import Learner
+from learner.trainer import Learner, resolve_device
+from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
+from storage.fs import resolve
+from storage.lease import Lease
+from storage.manifest import mark_buffer
+from storage.verify import verify_buffer
 from workers.rollout import RolloutSettings
 
 log = logging.getLogger(__name__)
@@ -101,36 +108,93 @@ class _Progress:
         return tqdm(total=num_epochs, desc=f"round {round_index} train", unit="epoch", leave=False)
 
 
+def preflight(cfg: RunConfig) -> tuple[int, ...]:
+    """Checks that need more than the config itself (the device, the task list); returns the tasks.
+
+    Runs before anything is written, so a run that cannot start leaves no trace.
+    """
+    resolve_device(cfg.training.device)
+    tasks = training_tasks(cfg)
+    if not tasks:
+        raise ConfigError(f"no training tasks: split '{cfg.env.train_split}' with env.max_train_tasks={cfg.env.max_train_tasks}")
+    return tasks
+
+
+def check_fresh(run_dir: Path, root: str) -> None:
+    """``RunDirError`` when ``run_dir`` or the buffer at ``root`` already holds a run (a new run
+    must never train on another run's rounds; ``--resume`` continues one)."""
+    from storage.layout import DATA, MANIFESTS, STAGING
+
+    found = [name for name in ("config.yaml", "metrics.jsonl", "checkpoints") if (run_dir / name).exists()]
+    loc = resolve(root)
+    rounds = committed_rounds(loc)
+    if rounds:
+        found.append(f"committed rounds {rounds[0]}..{rounds[-1]} in {loc.url}")
+    elif any(loc.listdir(d) for d in (DATA, MANIFESTS, STAGING)):
+        found.append(f"buffer files in {loc.url}")
+    if found:
+        raise RunDirError(f"{run_dir} already holds a run ({', '.join(found)}); pass --resume to continue it "
+                          "or choose another --run-dir")
+
+
+def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path) -> None:
+    """Finish a half-done commit, then check every committed file before any new work."""
+    recover_pending(root)
+    report = verify_buffer(root)
+    hint = f"nothing was changed; see `gpl-dist verify {run_dir}` and docs/buffer.md (Recovering)"
+    report.raise_if_bad(hint)
+    if ckpt is not None:
+        have = set(report.rounds) | set(report.quarantined)
+        missing = [r for r in range(ckpt.round_index + 1) if r not in have]
+        if missing:
+            raise BufferIntegrityError(f"{report.root}: the checkpoint is of round {ckpt.round_index} but rounds "
+                                       f"{missing} are not committed (a different buffer?); {hint}")
+
+
 def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, address: str | None = None,
                  resume: bool = False, progress: bool = True, collector=None) -> TrainingResult:
-    """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray."""
-    from storage import BufferReader, commit_round, committed_rounds, recover_pending
+    """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray.
 
-    check_expert_kind(cfg.env.domain, cfg.env.expert)  # before Ray starts: a typo fails in one line
+    Holds the run dir's and the buffer's leases throughout: a second driver or a ``clean`` of the
+    same run is refused. Nothing is written before the config, the device and (with ``resume``)
+    the checkpoint and every committed file have been checked.
+    """
     run_dir = Path(run_dir)
-    ckpt_dir = run_dir / "checkpoints"
-    if (ckpt_dir / "latest.pt").exists() and not resume:
-        raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --run-dir")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    save_config(cfg, run_dir / "config.yaml")
-    domain = get_domain(cfg.env.domain)
+    tasks = preflight(cfg)
     root = buffer_root(cfg, run_dir)
-    run_id = run_dir.name
-    tasks = training_tasks(cfg)
-    settings = RolloutSettings.from_config(cfg)
+    ckpt_path = run_dir / "checkpoints" / LATEST
+    if not resume:
+        check_fresh(run_dir, root)
+    with ExitStack() as held:
+        held.enter_context(Lease(run_dir, "gpl-dist train"))
+        if resolve(root).url != resolve(run_dir).url:
+            held.enter_context(Lease(root, "gpl-dist train"))
+        ckpt = load_checkpoint(ckpt_path) if resume and ckpt_path.exists() else None
+        if resume:
+            verify_for_resume(root, ckpt, run_dir)
+        return _train(cfg, run_dir, root, tasks, ckpt, serial=serial, address=address, progress=progress,
+                      collector=collector)
 
+
+def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None, *,
+           serial: bool, address: str | None, progress: bool, collector) -> TrainingResult:
+    domain = get_domain(cfg.env.domain)
+    ckpt_dir = run_dir / "checkpoints"
+    run_id = run_dir.name
+    settings = RolloutSettings.from_config(cfg)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
     model = build_model_from_config(domain, cfg.model, seed=cfg.seed)
     learner = Learner(model, cfg.training, seed=cfg.seed)
     start_round, history = 0, []
-    if resume and (ckpt_dir / "latest.pt").exists():
-        ckpt = load_checkpoint(ckpt_dir)
-        learner.model.load_state_dict(ckpt.model_state)
+    if ckpt is not None:
+        load_model_state(learner.model, ckpt, ckpt_dir / LATEST)
         learner.load_optimizer_state(ckpt.optimizer_state)
         restore_rng(ckpt.rng_state, learner.generator)
         start_round, history = ckpt.round_index + 1, list(ckpt.history)
         log.info("resuming %s at round %d", run_dir, start_round)
+    save_config(cfg, run_dir / "config.yaml")
+    mark_buffer(root, run_id)
 
     owns_collector = collector is None
     if collector is None:
@@ -144,9 +208,6 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     bars = _Progress(progress)
     max_attempts = cfg.collection.num_corrections + 1 if learner.model.uses_corrections else 1
     reader = BufferReader(root)
-    if resume:
-        # a driver killed in the middle of a commit left a journal: finish that commit first
-        recover_pending(root)
     try:
         for r in range(start_round, cfg.training.num_rounds):
             version = r

@@ -26,7 +26,8 @@ from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import load_checkpoint
+from gpl_dist.errors import UsageError
+from learner.checkpoint import LATEST, load_checkpoint, load_model_state
 from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
 
 # Table 1 (GPL, c0..c5) and Table 3 (c7, c10) of the paper, mean completion on test tasks.
@@ -142,10 +143,16 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
     ``report_stem``) and returns the result and the JSON's path."""
     run_dir = Path(run_dir)
-    ckpt = load_checkpoint(checkpoint or run_dir / "checkpoints")
-    cfg = config_from_dict(ckpt.config, str(run_dir / "config.yaml"))
+    for name, value in (("corrections", num_corrections), ("max_tasks", max_tasks)):
+        if value is not None and value < 0:
+            raise UsageError(f"{name} must be >= 0, got {value}")
+    if seeds is not None and not seeds:
+        raise UsageError("seeds must name at least one seed")
+    ckpt_file = Path(checkpoint) if checkpoint else run_dir / "checkpoints" / LATEST
+    ckpt = load_checkpoint(ckpt_file)
+    cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
     model = build_model_from_config(get_domain(cfg.env.domain), cfg.model)
-    model.load_state_dict(ckpt.model_state)
+    load_model_state(model, ckpt, ckpt_file)
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split
     greedy = cfg.eval.greedy_actions if greedy is None else greedy

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from gpl_dist.allocator import keep_freed_memory
-from gpl_dist.config import TrainingConfig
+from gpl_dist.config import ConfigError, TrainingConfig
 from learner.batches import TensorView
 
 
@@ -35,7 +35,8 @@ def resolve_device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cuda" and not torch.cuda.is_available():
-        raise RuntimeError("training.device is cuda but no CUDA device is available")
+        raise ConfigError(f"training.device is cuda, but torch {torch.__version__} finds no CUDA device here "
+                          "(use training.device=auto or cpu)")
     return torch.device(name)
 
 

@@ -1,74 +1,81 @@
 """``clean_leftovers``: remove what dead writers and superseded tries left behind.
 
-Never touches committed data: a file under ``data/`` is removed only when no committed manifest
-lists it (after any half-done commit has been rolled forward).
+Acts only on a gpl-dist buffer (a root that a driver marked, or that holds committed manifests),
+only while no driver holds it (``clean`` takes the buffer's lease for its duration, so no run can
+start meanwhile either), and never on committed data: it removes staging tries and ``_tmp-``
+files, nothing under ``data/``. Data under ``data/`` that no manifest lists (a deleted manifest)
+is reported by ``gpl-dist verify``, not removed.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import time
 
+from gpl_dist.errors import RunDirError
 from storage.commit import recover_pending
 from storage.fs import Location, resolve
-from storage.layout import DATA, MANIFESTS, STAGING, TMP_PREFIX, parse_pending_name, parse_round_dir
-from storage.manifest import committed_rounds, load_manifest
+from storage.layout import BUFFER_MARKER, MANIFESTS, STAGING, TMP_PREFIX, parse_pending_name, parse_round_dir
+from storage.lease import Lease, lease_holder
+from storage.manifest import committed_rounds, is_buffer
 
 
 def clean_leftovers(root: "str | os.PathLike[str] | Location", dry_run: bool = False, min_age_s: float = 0.0) -> list[str]:
     """Remove leftovers under ``root``; returns their paths (relative to the root), sorted.
 
     Leftovers: every staging try (``_tmp-*`` in progress or dead, ``try-*`` superseded or never
-    committed), ``_tmp-*`` files, and files under ``data/`` that no committed manifest lists.
-    Staging of rounds newer than the last committed one is kept while younger than ``min_age_s``
-    seconds (pass e.g. 3600 while writers of the next round may be running; the default 0 is for a
-    stopped run). With ``dry_run`` nothing is changed (half-done commits are not rolled forward
-    either, and their files are not reported).
+    committed) and ``_tmp-*`` manifests. Staging of rounds newer than the last committed one is kept
+    while younger than ``min_age_s`` seconds. With ``dry_run`` nothing is changed (half-done
+    commits are not rolled forward either, and their files are not reported).
+
+    Raises ``RunDirError`` when ``root`` is not a gpl-dist buffer or a process holds its lease.
     """
     loc = resolve(root)
-    pending_files: set[str] = set()
+    if not is_buffer(loc):
+        raise RunDirError(f"{loc.url} is not a gpl-dist buffer (no {BUFFER_MARKER}, no {MANIFESTS}/); nothing removed")
     if dry_run:
-        import json
-
-        for name in loc.listdir(MANIFESTS):
-            if parse_pending_name(name) is not None:
-                j = json.loads(loc.read_bytes(f"{MANIFESTS}/{name}").decode())
-                pending_files.update(dst for _, dst, _ in j["moves"])
-                pending_files.update(src for src, _, _ in j["moves"])
-    else:
+        holder = lease_holder(loc)
+        if holder is not None:
+            raise RunDirError(f"{loc.url} is in use by {holder.describe()}; nothing to clean while it runs")
+        return _leftovers(loc, _pending_files(loc), min_age_s)
+    with Lease(loc, "gpl-dist clean"):
         recover_pending(loc)
+        out = _leftovers(loc, set(), min_age_s)
+        for rel in out:
+            loc.remove(rel)
+        loc.remove_empty_dirs(STAGING)
+    return out
+
+
+def _pending_files(loc: Location) -> set[str]:
+    """Files named by commit journals (a dry run leaves them where they are)."""
+    files: set[str] = set()
+    for name in loc.listdir(MANIFESTS):
+        if parse_pending_name(name) is not None:
+            journal = json.loads(loc.read_bytes(f"{MANIFESTS}/{name}").decode())
+            files.update(dst for _, dst, _ in journal["moves"])
+            files.update(src for src, _, _ in journal["moves"])
+    return files
+
+
+def _leftovers(loc: Location, pending_files: set[str], min_age_s: float) -> list[str]:
     rounds = committed_rounds(loc)
     last = rounds[-1] if rounds else -1
-    committed: set[str] = set()
-    for r in rounds:
-        for shard in load_manifest(loc, r).shards:
-            committed.update(f.path for f in shard.files)
-
     out: list[str] = []
-    for rel in loc.find(DATA):
-        if rel not in committed and rel not in pending_files:
-            out.append(rel)
     now = time.time()
     for rdir in loc.listdir(STAGING):
         r = parse_round_dir(rdir)
         for udir in loc.listdir(f"{STAGING}/{rdir}"):
             for tdir in loc.listdir(f"{STAGING}/{rdir}/{udir}"):
                 rel = f"{STAGING}/{rdir}/{udir}/{tdir}"
+                files = loc.find(rel)
                 if r is not None and r > last and min_age_s > 0:
-                    mtimes = [loc.mtime(f) for f in loc.find(rel)] or [loc.mtime(rel)]
-                    newest = max((m for m in mtimes if m is not None), default=None)
+                    newest = max((m for m in (loc.mtime(f) for f in files or [rel]) if m is not None), default=None)
                     if newest is not None and now - newest < min_age_s:
                         continue
-                if any(f in pending_files for f in loc.find(rel)):
+                if any(f in pending_files for f in files):
                     continue
                 out.append(rel)
-    for name in loc.listdir(MANIFESTS):
-        if name.startswith(TMP_PREFIX):
-            out.append(f"{MANIFESTS}/{name}")
-    out.sort()
-    if not dry_run:
-        for rel in out:
-            loc.remove(rel)
-        loc.remove_empty_dirs(DATA)
-        loc.remove_empty_dirs(STAGING)
-    return out
+    out.extend(f"{MANIFESTS}/{name}" for name in loc.listdir(MANIFESTS) if name.startswith(TMP_PREFIX))
+    return sorted(out)

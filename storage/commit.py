@@ -35,7 +35,7 @@ from storage.layout import (
     pending_path,
     staging_unit_dir,
 )
-from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest
+from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest, mark_buffer
 from storage.writer import TEST_HOOK_ENV
 
 
@@ -187,6 +187,7 @@ def commit_round(
         obs_dtype=obs_dtype,
         extra=dict(extra or {}),
     )
+    mark_buffer(loc, run_id)
     journal = {"manifest": json.loads(manifest.to_json()), "moves": moves, "staging_dirs": staging_dirs}
     loc.write_bytes_atomic(pending_path(round_index), json.dumps(journal).encode())
     return _roll_forward(loc, journal)

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from gpl_dist.errors import UserError
 
-class BufferIntegrityError(RuntimeError):
+
+class BufferIntegrityError(UserError, RuntimeError):
     """A committed file is missing, has the wrong size or checksum, or disagrees with its manifest.
 
     The message always names the offending file (its path relative to the run root and the root).

@@ -6,8 +6,9 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve
-from storage.layout import MANIFESTS, manifest_path, parse_manifest_name
+from storage.layout import BUFFER_MARKER, MANIFESTS, manifest_path, parse_manifest_name
 
 
 @dataclass(frozen=True)
@@ -142,4 +143,34 @@ def load_manifest(root: "str | Location", round_index: int) -> RoundManifest:
         text = loc.read_bytes(rel).decode()
     except FileNotFoundError:
         raise FileNotFoundError(f"round {round_index} is not committed in {loc.url} (no {rel})") from None
-    return RoundManifest.from_json(text)
+    try:
+        return parse_manifest(text, round_index)
+    except ValueError as err:
+        raise BufferIntegrityError(f"manifest {rel} in {loc.url} {err}", rel) from None
+
+
+def parse_manifest(text: str, round_index: int) -> RoundManifest:
+    """The manifest of ``round_index`` from its JSON; ``ValueError`` saying why it is unreadable."""
+    try:
+        manifest = RoundManifest.from_json(text)
+    except (ValueError, KeyError, TypeError) as err:  # truncated or hand-edited JSON
+        raise ValueError(f"is unreadable ({type(err).__name__}: {err})") from None
+    if manifest.round_index != round_index:
+        raise ValueError(f"says round {manifest.round_index}")
+    return manifest
+
+
+def mark_buffer(root: "str | Location", run_id: str) -> None:
+    """Mark ``root`` as a gpl-dist buffer (once; ``clean`` acts only on marked or committed roots)."""
+    loc = resolve(root)
+    if not loc.exists(BUFFER_MARKER):
+        from datetime import datetime, timezone
+
+        created = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        loc.write_bytes_atomic(BUFFER_MARKER, json.dumps({"format_version": 1, "run_id": run_id, "created": created}).encode())
+
+
+def is_buffer(root: "str | Location") -> bool:
+    """Whether ``root`` is a gpl-dist buffer: marked by a driver, or holding committed manifests."""
+    loc = resolve(root)
+    return loc.exists(BUFFER_MARKER) or loc.isdir(MANIFESTS)

@@ -13,13 +13,15 @@ def ray_cluster():
     """A local Ray cluster shared by every test that needs one (started once: it takes seconds)."""
     import ray
 
+    from learner.distributed import init_ray
+
     if ray.is_initialized():
         yield ray
         return
     # Short path: Ray's Unix sockets live under the temp dir and have a length limit.
     temp_dir = tempfile.mkdtemp(prefix="gplray-", dir="/tmp")
-    ray.init(num_cpus=2, include_dashboard=False, _node_ip_address="127.0.0.1", _temp_dir=temp_dir,
-             log_to_driver=False, object_store_memory=512 * 1024 * 1024)
+    # The product's own start-up path, so the loopback test checks what `gpl-dist train` runs.
+    init_ray(None, 2, temp_dir=temp_dir, log_to_driver=False, object_store_memory=512 * 1024 * 1024)
     yield ray
     ray.shutdown()
 

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gpl_dist.config import config_from_dict
+from gpl_dist.errors import RunDirError
 from learner.checkpoint import load_checkpoint
 from learner.driver import run_training
 
@@ -51,7 +52,7 @@ def test_serial_run_commits_every_round_and_checkpoints(tmp_path):
 
 def test_existing_run_is_not_overwritten_without_resume(tmp_path):
     run_training(tiny(**{"training.num_rounds": 1}), tmp_path / "r", serial=True, progress=False)
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(RunDirError, match="--resume"):
         run_training(tiny(), tmp_path / "r", serial=True, progress=False)
 
 

@@ -16,6 +16,14 @@ _ORACLES = {
 }
 
 
+def correction_kinds(domain: str) -> tuple[str, ...]:
+    """The correction kinds ``make_corrector(domain, kind)`` accepts (``default`` is the paper's oracle)."""
+    if domain not in _ORACLES:
+        raise ValueError(f"unknown domain '{domain}' (known: {', '.join(_ORACLES)})")
+    module = _ORACLES[domain].split(":")[0]
+    return tuple(importlib.import_module(module).KINDS)
+
+
 def make_corrector(domain: str, kind: str = "default") -> CorrectionOracle:
     """Correction oracle of ``domain``; ``kind`` picks the variant (``default`` = the paper's)."""
     if domain not in _ORACLES:

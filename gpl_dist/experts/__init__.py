@@ -22,6 +22,13 @@ _EXPERTS = {
 }
 
 
+def expert_kinds(domain: str) -> tuple[str, ...]:
+    """The expert kinds ``make_expert`` accepts for ``domain``."""
+    if domain not in _EXPERTS:
+        raise ValueError(f"unknown domain '{domain}' (known: {', '.join(_EXPERTS)})")
+    return tuple(_EXPERTS[domain])
+
+
 def check_expert_kind(domain: str, kind: str) -> None:
     """Raise ``ValueError`` naming the known kinds unless ``domain`` has an expert of ``kind``."""
     if domain not in _EXPERTS:

@@ -1,0 +1,170 @@
+"""``verify_buffer``: check every committed file of a buffer against its manifest, and set bad rounds aside.
+
+What is checked, and reported per file (``gpl-dist verify``, ``gpl-dist inspect`` and ``train
+--resume`` before any new work):
+
+* every manifest parses and names its own round;
+* every file a manifest lists exists, has the recorded size and (with ``checksums``) sha256;
+* no round is missing below the newest committed one, unless it was quarantined;
+* no data under ``data/`` belongs to a round without a manifest, or is unlisted in its round's
+  manifest (a deleted manifest would otherwise drop its round silently).
+
+``quarantine_round`` moves a round's manifest and data under ``quarantine/round-R/`` (nothing is
+deleted): the round is then uncommitted, and ``train --resume`` collects it again if it comes after
+the last checkpoint. ``docs/buffer.md`` (Recovering) says when to use it.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from storage.errors import BufferIntegrityError
+from storage.fs import Location, resolve, sha256_hex
+from storage.layout import DATA, MANIFESTS, QUARANTINE, ROLES, TMP_PREFIX, manifest_path, parse_manifest_name, parse_round_dir, round_dir
+from storage.manifest import RoundManifest, parse_manifest
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a committed buffer: ``path`` relative to the root, the round it belongs
+    to (None when unknown) and a one-line ``message``."""
+
+    path: str
+    round_index: int | None
+    message: str
+
+
+@dataclass(frozen=True)
+class VerifyReport:
+    """Outcome of ``verify_buffer``.
+
+    Attributes:
+        root: the buffer's URL or path.
+        rounds: committed rounds whose manifest could be read, ascending.
+        quarantined: rounds set aside under ``quarantine/``.
+        num_files: committed files checked.
+        num_bytes: bytes read (checksums) or stat'ed.
+        checksums: whether sha256 sums were compared (else sizes only).
+        problems: everything found wrong, in round order.
+    """
+
+    root: str
+    rounds: tuple[int, ...]
+    quarantined: tuple[int, ...]
+    num_files: int
+    num_bytes: int
+    checksums: bool
+    problems: tuple[Problem, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    @property
+    def bad_rounds(self) -> tuple[int, ...]:
+        return tuple(sorted({p.round_index for p in self.problems if p.round_index is not None}))
+
+    def raise_if_bad(self, hint: str) -> None:
+        """``BufferIntegrityError`` naming the first problem and how many there are."""
+        if self.problems:
+            first = self.problems[0]
+            more = f" (and {len(self.problems) - 1} more)" if len(self.problems) > 1 else ""
+            raise BufferIntegrityError(f"{self.root}: {first.path}: {first.message}{more}; {hint}", first.path)
+
+
+def quarantined_rounds(root: "str | os.PathLike[str] | Location") -> tuple[int, ...]:
+    loc = resolve(root)
+    return tuple(sorted(r for r in map(parse_round_dir, loc.listdir(QUARANTINE)) if r is not None))
+
+
+def _check_files(loc: Location, m: RoundManifest, checksums: bool) -> tuple[list[Problem], int, int]:
+    problems, files, nbytes = [], 0, 0
+    for shard in m.shards:
+        for f in shard.files:
+            files += 1
+            try:
+                data = loc.read_bytes(f.path) if checksums else None
+                size = len(data) if data is not None else loc.size(f.path)
+            except FileNotFoundError:
+                problems.append(Problem(f.path, m.round_index, "missing"))
+                continue
+            nbytes += size
+            if size != f.nbytes:
+                problems.append(Problem(f.path, m.round_index, f"has {size} bytes, the manifest says {f.nbytes}"))
+            elif data is not None and sha256_hex(data) != f.sha256:
+                problems.append(Problem(f.path, m.round_index, "checksum mismatch (the file changed after it was committed)"))
+    return problems, files, nbytes
+
+
+def _unlisted_data(loc: Location, listed: set[str], committed: set[int], unreadable: set[int]) -> list[Problem]:
+    """Data of rounds without a manifest, and files their round's manifest does not list (the
+    files of a round whose manifest is unreadable are not judged: that manifest is the problem)."""
+    problems: list[Problem] = []
+    orphan_rounds: set[tuple[str, int]] = set()
+    for role in ROLES:
+        for name in loc.listdir(f"{DATA}/{role}"):
+            r = parse_round_dir(name)
+            rel = f"{DATA}/{role}/{name}"
+            if r is None:
+                problems.append(Problem(rel, None, "not a round directory"))
+            elif r in unreadable:
+                continue
+            elif r not in committed:
+                orphan_rounds.add((rel, r))
+            else:
+                problems.extend(Problem(p, r, "not listed in its round's manifest")
+                                for p in loc.find(rel) if p not in listed and not os.path.basename(p).startswith(TMP_PREFIX))
+    problems.extend(Problem(rel, r, f"committed data of round {r}, but {manifest_path(r)} is missing (deleted?)")
+                    for rel, r in sorted(orphan_rounds))
+    return problems
+
+
+def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = True) -> VerifyReport:
+    """Check the committed part of the buffer at ``root`` (see the module docstring)."""
+    loc = resolve(root)
+    problems: list[Problem] = []
+    rounds: list[int] = []
+    listed: set[str] = set()
+    files = nbytes = 0
+    for name in loc.listdir(MANIFESTS):
+        r = parse_manifest_name(name)
+        if r is None:
+            continue
+        try:
+            m = parse_manifest(loc.read_bytes(manifest_path(r)).decode(errors="replace"), r)
+        except ValueError as err:
+            problems.append(Problem(manifest_path(r), r, f"manifest {err}"))
+            continue
+        rounds.append(r)
+        listed.update(f.path for s in m.shards for f in s.files)
+        p, n, b = _check_files(loc, m, checksums)
+        problems += p
+        files += n
+        nbytes += b
+    quarantined = quarantined_rounds(loc)
+    unreadable = {p.round_index for p in problems if p.path.startswith(MANIFESTS) and p.round_index is not None}
+    problems += _unlisted_data(loc, listed, set(rounds), unreadable)
+    orphaned = {p.round_index for p in problems}
+    newest = max(rounds + sorted(unreadable) + sorted(r for r in orphaned if r is not None), default=-1)
+    for r in range(newest):
+        if r not in rounds and r not in unreadable and r not in quarantined and r not in orphaned:
+            problems.append(Problem(manifest_path(r), r, f"round {r} is missing (rounds 0..{newest} should be committed)"))
+    problems.sort(key=lambda p: (p.round_index if p.round_index is not None else -1, p.path))
+    return VerifyReport(root=loc.url, rounds=tuple(sorted(rounds)), quarantined=quarantined, num_files=files,
+                        num_bytes=nbytes, checksums=checksums, problems=tuple(problems))
+
+
+def quarantine_round(root: "str | os.PathLike[str] | Location", round_index: int) -> list[str]:
+    """Move round ``round_index``'s manifest and data under ``quarantine/round-R/``; returns what moved."""
+    loc = resolve(root)
+    dest = f"{QUARANTINE}/{round_dir(round_index)}"
+    moved = []
+    sources = [manifest_path(round_index)] + [f"{DATA}/{role}/{round_dir(round_index)}" for role in ROLES]
+    for rel in sources:
+        if loc.exists(rel):
+            loc.move(rel, f"{dest}/{rel}")
+            moved.append(rel)
+    if not moved:
+        raise BufferIntegrityError(f"{loc.url} holds nothing of round {round_index} to quarantine")
+    return moved
