@@ -78,7 +78,8 @@ def run(kind, n_tuples, root, steps=100, attempts_per_task=5, tasks_per_unit=50,
     lp.start()
     load = lq.get()
     lp.join()
-    print(f"[{kind}] {total} tuples, {manifest.num_attempts} attempts of {steps} steps, {len(records)} shards, obs {manifest.obs_shape} {manifest.obs_dtype}")
+    print(f"[{kind}] {total} tuples, {manifest.num_attempts} attempts of {steps} steps, {len(records)} shards, "
+          f"obs {manifest.obs_shape} {manifest.obs_dtype}")
     print(f"  write : {wall:.2f} s wall for 2 concurrent writer processes -> {total / wall:,.0f} tuples/s "
           f"(per-process write time {', '.join(f'{s:.2f}' for s, _ in results)} s)")
     print(f"  commit: {commit_s:.3f} s")

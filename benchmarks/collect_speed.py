@@ -55,18 +55,19 @@ def bare_env_two_processes(seconds: float) -> float:
 
 
 def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, tasks_per_unit: int) -> tuple[float, int]:
+    from gpl_dist.config import CollectionConfig, config_from_dict
     from gpl_dist.domains import get_domain
     from gpl_dist.models.gpl import build_model, state_dict_to_numpy
-    from learner.distributed import RayCollector
     from learner.driver import make_units
-    from gpl_dist.config import config_from_dict
     from storage import commit_round
+    from workers.ray_pool import RayCollector
     from workers.rollout import RolloutSettings
 
     root = tempfile.mkdtemp(prefix="gpl-collect-bench-")
     cfg = config_from_dict({"collection": {"tasks_per_unit": tasks_per_unit, "num_corrections": corrections}})
     weights = state_dict_to_numpy(build_model(get_domain("multiroom"), seed=0))
-    collector = RayCollector("multiroom", RolloutSettings(num_corrections=corrections), root, "bench", num_workers)
+    settings = RolloutSettings(collection=CollectionConfig(num_corrections=corrections))
+    collector = RayCollector("multiroom", settings, root, "bench", num_workers)
     try:
         # round 0 warms up (actors start, import torch, fill the expert's distance-map caches for
         # these tasks); round 1, timed, is the steady state of a DAgger run from its second round on
@@ -123,8 +124,10 @@ def naive_rate(tasks: tuple[int, ...], corrections: int) -> float:
             traj = []
             cond = Conditioning(
                 torch.from_numpy(vocab.encode(env.instruction)[None]),
-                torch.from_numpy(np.stack([h[0] for h in history])) if history else torch.zeros((0, 4) + d.obs_shape, dtype=torch.uint8),
-                torch.from_numpy(np.stack([h[1] for h in history])) if history else torch.zeros((0, vocab.max_tokens), dtype=torch.long),
+                (torch.from_numpy(np.stack([h[0] for h in history])) if history
+                 else torch.zeros((0, 4) + d.obs_shape, dtype=torch.uint8)),
+                (torch.from_numpy(np.stack([h[1] for h in history])) if history
+                 else torch.zeros((0, vocab.max_tokens), dtype=torch.long)),
                 torch.arange(len(history)).view(1, -1),
             )
             for _ in range(d.steps_per_attempt):

@@ -22,6 +22,7 @@ import numpy as np
 
 
 def fill_buffer(root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
+    from gpl_dist.config import CollectionConfig
     from gpl_dist.domains import get_domain
     from gpl_dist.models.gpl import build_model, state_dict_to_numpy
     from gpl_dist.records import WorkUnit
@@ -30,7 +31,8 @@ def fill_buffer(root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
     from workers.rollout import RolloutSettings, RolloutWorker
 
     d = get_domain("multiroom")
-    worker = RolloutWorker(d, RolloutSettings(num_corrections=5), ShardWriter(root, "bench"), "bench-0")
+    settings = RolloutSettings(collection=CollectionConfig(num_corrections=5))
+    worker = RolloutWorker(d, settings, ShardWriter(root, "bench"), "bench-0")
     worker.set_weights(state_dict_to_numpy(build_model(d, seed=0)), 0)
     tasks = split_tasks("multiroom", "train") + split_tasks("multiroom", "valid")
     records, collected, u = [], 0, 0
@@ -105,7 +107,8 @@ def main() -> None:
     syn_s, _ = train(synthetic_view_like(view), args.epochs, args.batch_size, args.chunk, args.threads)
     total = n * args.epochs
     print(f"threads {args.threads}, batch {args.batch_size}, states_per_chunk {args.chunk}, {args.epochs} epochs")
-    print(f"from buffer   : {buf_s:7.1f} s  {total / buf_s:>10,.0f} samples/s  (load {load_s:.1f} s; last-epoch loss {buf_loss:.3f})")
+    print(f"from buffer   : {buf_s:7.1f} s  {total / buf_s:>10,.0f} samples/s  "
+          f"(load {load_s:.1f} s; last-epoch loss {buf_loss:.3f})")
     print(f"synthetic     : {syn_s:7.1f} s  {total / syn_s:>10,.0f} samples/s")
     print(f"ratio buffer/synthetic: {syn_s / buf_s:.2f}x (target >= 0.8); 5 epochs over 1e6 from the buffer, load "
           f"included: {(buf_s * 5 / args.epochs + load_s) * 1e6 / n:.1f} s (target <= 60 s)")

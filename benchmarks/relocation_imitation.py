@@ -147,10 +147,11 @@ def privileged_dagger(args) -> None:
 
 def failure_modes(args) -> None:
     from gpl_dist.config import config_from_dict
+    from gpl_dist.corrections import make_corrector
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
+    from gpl_dist.models.gpl import build_model_from_config
     from learner.checkpoint import load_checkpoint
-    from workers.rollout import RolloutSettings, RolloutWorker
+    from workers.loop import Rollout
 
     ckpt = load_checkpoint(f"{args.run_dir}/checkpoints")
     cfg = config_from_dict(ckpt.config, f"{args.run_dir}/config.yaml")
@@ -158,13 +159,13 @@ def failure_modes(args) -> None:
         raise SystemExit(f"{args.run_dir} is a {cfg.env.domain} run; this benchmark analyses relocation runs")
     model = build_model_from_config(get_domain("relocation"), cfg.model)
     model.load_state_dict(ckpt.model_state)
-    settings = RolloutSettings.from_config(cfg, num_corrections=args.corrections, greedy_actions=False,
-                                           label_states=False)
-    worker = RolloutWorker(get_domain("relocation"), settings, worker_id="failure-modes")
-    worker.set_weights(state_dict_to_numpy(model), ckpt.policy_version)
+    model.eval()
+    rollout = Rollout(get_domain("relocation"), model, make_corrector("relocation", cfg.env.correction_kind),
+                      end_aligned=cfg.model.trajectory_ends_at_last_state)
     test = split_tasks("relocation", "test")[:args.test_tasks]
     report_expert(test)
-    attempts = worker.collect(tuple(test), "test", args.seed)
+    attempts = rollout.run(tuple(test), args.corrections, args.seed, split="test",
+                           policy_version=ckpt.policy_version).attempts
     print(f"{args.run_dir} (round {ckpt.round_index}), attempts ending below 0.9 completion, "
           "by where the block stopped:")
     for k in range(args.corrections + 1):

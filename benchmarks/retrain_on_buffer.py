@@ -32,7 +32,7 @@ import torch
 from gpl_dist.cli import parse_overrides
 from gpl_dist.config import ConfigError, config_to_dict, load_config, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
+from gpl_dist.models.gpl import build_model_from_config
 from learner.checkpoint import Checkpoint, capture_rng, load_checkpoint, save_checkpoint
 from learner.driver import buffer_root
 from learner.evaluate import evaluate_policy, format_table
@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                                                                   flush=True))
     print(f"trained {cfg.training.num_epochs_per_round} epochs in {stats.seconds:.0f} s", flush=True)
 
-    result = evaluate_policy(cfg, state_dict_to_numpy(learner.model), num_corrections=cfg.eval.num_corrections,
+    result = evaluate_policy(cfg, learner.model, num_corrections=cfg.eval.num_corrections,
                              seeds=tuple(cfg.eval.seeds), split=cfg.eval.split, max_tasks=cfg.eval.max_tasks,
                              greedy=cfg.eval.greedy_actions)
     print(f"meta-test on {result.num_tasks} {cfg.eval.split} tasks x {len(cfg.eval.seeds)} seeds "

@@ -47,6 +47,7 @@ def _buffer_root(path: str) -> str:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
+    """``gpl-dist train``: meta-train a run (Algorithm 1), fresh or ``--resume``."""
     from gpl_dist.config import load_config
     from learner.driver import run_training
 
@@ -64,7 +65,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     if result.history:
         last = result.history[-1]
         print("\nfinal round, training tasks (mean completion after k corrections):")
-        for k, v in enumerate(last["completion_by_corrections"]):
+        for k, v in enumerate(last.completion_by_corrections):
             print(f"  c{k}: {v:.3f}")
         print(f"run saved to {result.run_dir}; evaluate with: gpl-dist eval --run-dir {result.run_dir}")
     return 0
@@ -82,7 +83,8 @@ def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from learner.evaluate import format_table, evaluate_run
+    """``gpl-dist eval``: meta-test a run's checkpoint on held-out tasks (Algorithm 2)."""
+    from learner.evaluate import evaluate_run, format_table
 
     seeds = _parse_seeds(args.seeds)
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
@@ -96,6 +98,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    """``gpl-dist render``: a task's start state as PNG, or an attempt as GIF."""
     from gpl_dist.rendering import attempt_frames, parse_actions, write_picture
 
     actions = parse_actions(args.actions) if args.actions else None
@@ -111,6 +114,7 @@ def _print_problems(report) -> None:
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
+    """``gpl-dist inspect``: verify a run's buffer, then summarise it."""
     from storage import format_inspection
     from storage.verify import verify_buffer
 
@@ -123,6 +127,7 @@ def cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def cmd_verify(args: argparse.Namespace) -> int:
+    """``gpl-dist verify``: check every committed file; ``--quarantine`` sets bad rounds aside."""
     from storage.lease import Lease
     from storage.verify import quarantine_round, verify_buffer
 
@@ -147,6 +152,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def cmd_clean(args: argparse.Namespace) -> int:
+    """``gpl-dist clean``: remove dead writers' leftovers from a buffer no run holds."""
     from storage import clean_leftovers
     from storage.verify import verify_buffer
 
@@ -164,7 +170,11 @@ def cmd_clean(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gpl-dist", description="Guiding Policies with Language: distributed DAgger meta-training.")
+    """The argument parser of every subcommand."""
+    from gpl_dist.domains import domain_names
+
+    parser = argparse.ArgumentParser(prog="gpl-dist",
+                                     description="Guiding Policies with Language: distributed DAgger meta-training.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -195,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("render", help="draw a task (PNG) or an attempt (GIF)")
-    p.add_argument("--env", required=True, choices=["multiroom", "relocation"])
+    p.add_argument("--env", required=True, choices=domain_names())
     p.add_argument("--task", required=True, type=int)
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
     p.add_argument("--actions", help="actions of the attempt: '0,1,3,...' or a file holding them")
@@ -223,6 +233,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run the command line ``argv``; returns the exit status (2 for every expected failure)."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -30,6 +30,8 @@ class ConfigError(UserError, ValueError):
 
 @dataclass(frozen=True)
 class EnvConfig:
+    """The ``env`` section: domain, tasks, correction oracle and expert."""
+
     domain: str = "multiroom"
     """Domain to meta-train on: ``multiroom`` or ``relocation``."""
     train_split: str = "train"
@@ -46,6 +48,8 @@ class EnvConfig:
 
 @dataclass(frozen=True)
 class CollectionConfig:
+    """The ``collection`` section: rollout workers and how they act."""
+
     num_workers: int = 2
     """Rollout actors on Ray (ignored with --serial, which runs one in-process worker)."""
     num_corrections: int = 5
@@ -60,6 +64,8 @@ class CollectionConfig:
 
 @dataclass(frozen=True)
 class BufferConfig:
+    """The ``buffer`` section: where the buffer lives and how much the learner reads."""
+
     capacity_tuples: int = 1_000_000
     """First-in-first-out capacity of the training view, in labelled states."""
     location: str = ""
@@ -68,6 +74,8 @@ class BufferConfig:
 
 @dataclass(frozen=True)
 class ModelConfig:
+    """The ``model`` section: the variant and the architecture's switches."""
+
     variant: str = "gpl"
     """gpl, instruction_only, full_information, no_instruction, no_trajectory or latest_correction."""
     embedding_dim: int = 16
@@ -80,6 +88,8 @@ class ModelConfig:
 
 @dataclass(frozen=True)
 class TrainingConfig:
+    """The ``training`` section: DAgger rounds and the learner."""
+
     num_rounds: int = 10
     """DAgger rounds (collect, commit, train) to run."""
     num_epochs_per_round: int = 5
@@ -98,6 +108,8 @@ class TrainingConfig:
 
 @dataclass(frozen=True)
 class EvalConfig:
+    """The ``eval`` section: meta-test settings."""
+
     split: str = "test"
     """Split of held-out tasks for meta-testing."""
     num_corrections: int = 5
@@ -112,6 +124,8 @@ class EvalConfig:
 
 @dataclass(frozen=True)
 class RunConfig:
+    """A whole run's config: the seed and one section per component."""
+
     seed: int = 0
     """Seed of the run; tasks, rollouts, corrections and weights derive theirs from it."""
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -155,7 +169,7 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, Mapping):
             raise ConfigError(f"{where}: expected a mapping for section, got {type(value).__name__}")
-        return _build(tp, value, where)
+        return _build(typing.cast(type, tp), value, where)
     if origin is tuple:
         args = typing.get_args(tp)
         if not isinstance(value, (list, tuple)):
@@ -260,10 +274,10 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
     against the domain's own tables, so a misspelt or domain-foreign value fails here, in one line,
     before anything is started or written.
     """
-    from gpl_dist.domains import DOMAIN_NAMES
+    from gpl_dist.domains import domain_names
 
     checks = [
-        _one_of("env.domain", cfg.env.domain, DOMAIN_NAMES),
+        _one_of("env.domain", cfg.env.domain, domain_names()),
         _one_of("model.variant", cfg.model.variant, _VARIANTS),
         _one_of("training.device", cfg.training.device, _DEVICES),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
@@ -292,19 +306,18 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
 
 
 def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
-    from gpl_dist.corrections import correction_kinds
     from gpl_dist.domains import get_domain
-    from gpl_dist.experts import expert_kinds
     from gpl_dist.splits import load_splits
 
     domain = cfg.env.domain
+    spec = get_domain(domain)
     scope = f" for {domain}"
     splits = tuple(sorted(load_splits(domain)))
-    num_tasks = get_domain(domain).num_tasks
+    num_tasks = spec.num_tasks
     bad_ids = [t for t in cfg.env.task_ids if not 0 <= t < num_tasks]
     return [
-        _one_of("env.correction_kind", cfg.env.correction_kind, correction_kinds(domain), scope),
-        _one_of("env.expert", cfg.env.expert, expert_kinds(domain), scope),
+        _one_of("env.correction_kind", cfg.env.correction_kind, spec.correction_kinds, scope),
+        _one_of("env.expert", cfg.env.expert, tuple(spec.experts), scope),
         _one_of("env.train_split", cfg.env.train_split, splits, scope),
         _one_of("eval.split", cfg.eval.split, splits, scope),
         (not bad_ids, f"env.task_ids {bad_ids[:5]} are outside {domain}'s tasks 0..{num_tasks - 1}"),

@@ -32,7 +32,7 @@ def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None
     domain = get_domain(domain_name)
     env = domain.make_env(task_id, render_mode="rgb_array")
     env.reset(seed=seed)
-    frames = [env.render()]
+    frames: list[np.ndarray] = [np.asarray(env.render())]
     if actions is None and not expert:
         return frames
     steps = max_steps or domain.steps_per_attempt
@@ -40,12 +40,13 @@ def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None
     if expert:
         from gpl_dist.experts import make_expert
         policy = make_expert(env)
-    for t in range(steps if expert else min(len(actions), steps)):
-        a = policy.act(env) if policy is not None else int(actions[t])
+    planned = list(actions or ())
+    for t in range(steps if expert else min(len(planned), steps)):
+        a = policy.act(env) if policy is not None else int(planned[t])
         if not 0 <= a < domain.num_actions:
             raise ValueError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
         _, _, _, _, info = env.step(a)
-        frames.append(env.render())
+        frames.append(np.asarray(env.render()))
         if expert and info.get("success"):
             break  # the expert's attempt ends where the task is solved, in either domain
     return frames

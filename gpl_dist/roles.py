@@ -8,7 +8,8 @@ interfaces; nothing here imports Ray, torch or a storage library.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import importlib
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -19,15 +20,30 @@ from gpl_dist.records import Attempt, Correction, WorkUnit
 if TYPE_CHECKING:
     import gymnasium
 
+    from gpl_dist.models.sizes import Sizes
+
+
+def lazy(target: str) -> Callable[..., Any]:
+    """A factory that imports ``"package.module:name"`` on first call and calls it: lets a domain
+    declare its experts and correction oracle without importing them (or their dependencies)."""
+    def make(*args: Any, **kwargs: Any) -> Any:
+        module, name = target.split(":")
+        return getattr(importlib.import_module(module), name)(*args, **kwargs)
+
+    make.__qualname__ = make.__name__ = f"lazy({target})"
+    return make
+
 
 @dataclass(frozen=True)
 class DomainSpec:
-    """What the domain-agnostic parts (worker, model, learner, evaluation) know of a domain.
+    """A domain, declared once: everything the domain-agnostic parts (config validation, CLI,
+    worker, model, learner, evaluation) know of it. ``gpl_dist.domains`` is the registry;
+    ``docs/adding-a-domain.md`` shows how to add one.
 
     Attributes:
         name: short name used in configs and the CLI (``multiroom``, ``relocation``).
-        env_id: gymnasium id, e.g. ``gpl/MultiRoom-v0``.
-        num_tasks: size of the task set.
+        env_id: gymnasium id, e.g. ``gpl/MultiRoom-v0`` (registered with the domain).
+        num_tasks: size of the task set; task ids are ``0..num_tasks-1``.
         obs_shape: shape of one observation.
         obs_dtype: numpy dtype name of observations (``uint8`` or ``float32``).
         num_actions: size of the discrete action space.
@@ -35,10 +51,19 @@ class DomainSpec:
         trajectory_stride: the correction module reads every ``trajectory_stride``-th state of an
             earlier attempt (25 for multi-room, 70 for relocation, as in the paper).
         vocabulary: words of instructions and corrections.
-        make_env: builds the (unwrapped) env of a task: ``make_env(task_id, **kwargs)``.
-        split_names: names of the versioned splits.
+        make_env: builds the (unwrapped) env of a task: ``make_env(task_id, **kwargs)``; with
+            ``render_mode="rgb_array"`` its ``render()`` draws the scene (``gpl-dist render``).
+        split_names: names of the task splits.
+        experts: expert kind -> factory of an ``Expert`` (the first kind is the default).
+        correction_kinds: kinds ``make_corrector`` accepts; ``default`` is the paper's oracle.
+        make_corrector: ``make_corrector(kind)`` -> ``CorrectionOracle``.
+        model_sizes: layer sizes of the GPL network (``gpl_dist.models.sizes.Sizes``).
+        paper_completion: the paper's GPL completion on test tasks after k corrections (Tables 1, 3).
+        paper_baselines: the paper's baseline completions by name (Table 1).
         obs_categories: for categorical grid observations, the number of codes each channel can
             hold (the model one-hot encodes them); None for continuous observations.
+        splits: task ids of each split, given inline; None reads the versioned file
+            ``gpl_dist/splits/<name>.json`` (``gpl_dist.splits``).
     """
 
     name: str
@@ -52,7 +77,14 @@ class DomainSpec:
     vocabulary: Vocabulary
     make_env: Callable[..., "gymnasium.Env"]
     split_names: tuple[str, ...]
+    experts: Mapping[str, Callable[[], "Expert"]]
+    correction_kinds: tuple[str, ...]
+    make_corrector: Callable[[str], "CorrectionOracle"]
+    model_sizes: "Sizes"
+    paper_completion: Mapping[int, float] = field(default_factory=dict)
+    paper_baselines: Mapping[str, float] = field(default_factory=dict)
     obs_categories: tuple[int, ...] | None = None
+    splits: Mapping[str, tuple[int, ...]] | None = None
 
     @property
     def trajectory_samples(self) -> int:
@@ -84,7 +116,7 @@ class TaskEnv(Protocol):
     task_id: int
     instruction: str
 
-    def reset(self, *, seed: int | None = None, options: Mapping[str, Any] | None = None) -> tuple[Any, dict]: ...
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]: ...
 
     def step(self, action: int) -> tuple[Any, float, bool, bool, dict]: ...
 
@@ -125,10 +157,20 @@ class CorrectionOracle(Protocol):
 
 @runtime_checkable
 class Policy(Protocol):
-    """Acts in many envs at once: one batched forward per step."""
+    """Acts in many envs at once: the conditioning is encoded once per attempt, then one batched
+    forward per step (``workers.loop.Rollout`` drives it; ``GPLPolicy`` implements it)."""
 
-    def act(self, observations: np.ndarray, conditioning: Any, greedy: bool = False) -> np.ndarray:
-        """Actions int64 ``(B,)`` for observations ``(B, *obs_shape)`` under ``conditioning``."""
+    @property
+    def uses_corrections(self) -> bool:
+        """Whether later attempts are conditioned on earlier (trajectory, correction) pairs."""
+        ...
+
+    def encode_conditioning(self, cond: Any) -> Any:
+        """``(A, D)`` tensor: the instruction and correction history of each attempt row of ``cond``."""
+        ...
+
+    def action_logits(self, obs: Any, z: Any) -> Any:
+        """``(B, num_actions)`` logits for observations ``(B, *obs_shape)`` under per-state conditioning ``z``."""
         ...
 
 
@@ -147,7 +189,8 @@ class BufferReader(Protocol):
 
     def committed_rounds(self) -> list[int]: ...
 
-    def load_training_view(self, capacity_tuples: int) -> Any:
+    def load_training_view(self, capacity_tuples: int = 1_000_000, trajectory_stride: int = 25,
+                           trajectory_end_aligned: bool = False) -> Any:
         """Newest ``capacity_tuples`` labelled states over committed rounds, as in-memory arrays."""
         ...
 
@@ -164,11 +207,25 @@ class RolloutWorker(Protocol):
 
 
 @runtime_checkable
+class Collector(Protocol):
+    """Hands a round's work units to rollout workers (in this process, or Ray actors)."""
+
+    def collect_round(self, units: Sequence[WorkUnit], weights: dict, policy_version: int,
+                      on_result: Callable[[Any], None] | None = None) -> list[Any]:
+        """Every unit's result, in unit order; ``on_result`` sees each as it arrives."""
+        ...
+
+    def close(self) -> None: ...
+
+
+@runtime_checkable
 class Learner(Protocol):
     """Trains the policy over the committed buffer view."""
 
-    def train_round(self, view: Any) -> Mapping[str, float]:
-        """Train ``num_epochs_per_round`` epochs over ``view``; return scalar statistics."""
+    def train_round(self, view: Any, on_epoch: Callable[[int, float, float], None] | None = None) -> Any:
+        """Train ``num_epochs_per_round`` epochs over ``view``; return the round's statistics."""
         ...
 
-    def weights(self) -> Any: ...
+    def weights(self) -> dict[str, np.ndarray]:
+        """The current weights as numpy arrays (what workers load)."""
+        ...

@@ -14,9 +14,18 @@ from pathlib import Path
 _DIR = Path(__file__).with_name("splits")
 
 
-@lru_cache(maxsize=None)
 def load_splits(domain: str) -> dict[str, tuple[int, ...]]:
-    """All splits of ``domain``: name -> task ids."""
+    """All splits of ``domain``: name -> task ids (given inline by its ``DomainSpec``, or its file)."""
+    from gpl_dist.domains import get_domain
+
+    inline = get_domain(domain).splits
+    if inline is not None:
+        return {name: tuple(int(i) for i in ids) for name, ids in inline.items()}
+    return _load_split_file(domain)
+
+
+@lru_cache(maxsize=None)
+def _load_split_file(domain: str) -> dict[str, tuple[int, ...]]:
     path = _DIR / f"{domain}.json"
     if not path.is_file():
         raise FileNotFoundError(f"no split file for domain '{domain}' at {path}")
@@ -47,5 +56,5 @@ def write_splits(domain: str, splits: dict[str, list[int]], seed: int, note: str
     payload = {"domain": domain, "seed": seed, "note": note,
                "splits": {k: sorted(int(i) for i in v) for k, v in splits.items()}}
     path.write_text(json.dumps(payload, indent=1) + "\n")
-    load_splits.cache_clear()
+    _load_split_file.cache_clear()
     return path

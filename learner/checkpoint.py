@@ -46,7 +46,8 @@ class Checkpoint:
 
 
 def capture_rng(generator: torch.Generator) -> dict:
-    np_state = np.random.get_state()
+    """The torch, numpy and batch-generator RNG states, as tensors and plain values."""
+    np_state: tuple = np.random.get_state(legacy=True)  # type: ignore[assignment]  # legacy=True is the tuple form
     return {
         "torch": torch.get_rng_state(),
         "generator": generator.get_state(),
@@ -56,6 +57,7 @@ def capture_rng(generator: torch.Generator) -> dict:
 
 
 def restore_rng(state: dict, generator: torch.Generator) -> None:
+    """Restore what ``capture_rng`` captured."""
     torch.set_rng_state(state["torch"])
     generator.set_state(state["generator"])
     n = state["numpy"]
@@ -63,6 +65,7 @@ def restore_rng(state: dict, generator: torch.Generator) -> None:
 
 
 def save_checkpoint(directory: str | os.PathLike, ckpt: Checkpoint, keep_round_copy: bool = True) -> Path:
+    """Write ``ckpt`` atomically as ``latest.pt`` (and ``round-R.pt``); returns the path."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     payload: dict[str, Any] = {

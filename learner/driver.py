@@ -18,8 +18,9 @@ import json
 import logging
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -32,30 +33,32 @@ from gpl_dist.models.gpl import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import (LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng,
-                                save_checkpoint)
-from learner.collectors import SerialCollector, UnitResult
+from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng, save_checkpoint
 from learner.trainer import Learner, resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
 from storage.fs import resolve
 from storage.lease import Lease
 from storage.manifest import mark_buffer
 from storage.verify import verify_buffer
+from workers.pool import SerialCollector, UnitResult
 from workers.rollout import RolloutSettings
 
 log = logging.getLogger(__name__)
 
 
 def buffer_root(cfg: RunConfig, run_dir: Path) -> str:
+    """Where the run's buffer lives: ``buffer.location``, or ``RUN_DIR/buffer``."""
     return cfg.buffer.location or str(run_dir / "buffer")
 
 
 def training_tasks(cfg: RunConfig) -> tuple[int, ...]:
+    """The task ids a run collects on: ``env.task_ids``, or the split's first ``max_train_tasks``."""
     tasks = cfg.env.task_ids or split_tasks(cfg.env.domain, cfg.env.train_split)
     return tasks[: cfg.env.max_train_tasks] if cfg.env.max_train_tasks else tasks
 
 
 def make_units(tasks: tuple[int, ...], round_index: int, cfg: RunConfig, split: str, policy_version: int) -> list[WorkUnit]:
+    """Round ``round_index``'s work units of ``collection.tasks_per_unit`` tasks each."""
     per = cfg.collection.tasks_per_unit
     return [
         WorkUnit(round_index=round_index, unit_index=u, task_ids=tuple(int(t) for t in tasks[s:s + per]), split=split,
@@ -77,16 +80,65 @@ def completion_curve(reader, round_index: int, max_attempts: int) -> list[float]
 
 
 @dataclass(frozen=True)
+class RoundMetrics:
+    """One DAgger round, as written to ``metrics.jsonl`` (one JSON line, keys as below except
+    ``round_index``, written ``round``) and kept in the checkpoint's history.
+
+    Attributes:
+        round_index: the round.
+        collected_tuples: labelled states collected; None when the round was committed before a
+            restart and not collected again.
+        failed_tasks: tasks dropped because their env, expert or oracle raised.
+        collection_seconds: wall time of collection and commit.
+        load_seconds: wall time of loading the training view.
+        completion_by_corrections: mean completion on the round's training tasks after 0..K corrections.
+        buffer_tuples: labelled states in the training view.
+        loss: cross-entropy to the expert over the last epoch.
+        accuracy: agreement with the expert's action over the last epoch.
+        train_seconds: wall time of the round's training.
+        train_steps: gradient steps.
+        correction_spread: see ``learner.trainer.RoundStats``.
+    """
+
+    round_index: int
+    collected_tuples: int | None
+    failed_tasks: tuple[int, ...]
+    collection_seconds: float
+    load_seconds: float
+    completion_by_corrections: tuple[float, ...]
+    buffer_tuples: int
+    loss: float
+    accuracy: float
+    train_seconds: float
+    train_steps: int
+    correction_spread: float | None
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d.update(failed_tasks=list(self.failed_tasks), completion_by_corrections=list(self.completion_by_corrections))
+        return {"round": d.pop("round_index"), **d}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "RoundMetrics":
+        return cls(round_index=int(d["round"]), collected_tuples=d.get("collected_tuples"),
+                   failed_tasks=tuple(d.get("failed_tasks") or ()), collection_seconds=float(d["collection_seconds"]),
+                   load_seconds=float(d.get("load_seconds", 0.0)),
+                   completion_by_corrections=tuple(d["completion_by_corrections"]), buffer_tuples=int(d["buffer_tuples"]),
+                   loss=float(d["loss"]), accuracy=float(d["accuracy"]), train_seconds=float(d["train_seconds"]),
+                   train_steps=int(d.get("train_steps", 0)), correction_spread=d.get("correction_spread"))
+
+
+@dataclass(frozen=True)
 class TrainingResult:
     """Outcome of ``run_training``.
 
     Attributes:
         run_dir: where everything was written.
-        history: one metrics dict per round (the lines of metrics.jsonl).
+        history: one record per round so far, resumed rounds included (the lines of metrics.jsonl).
     """
 
     run_dir: Path
-    history: list
+    history: tuple[RoundMetrics, ...]
 
 
 class _Progress:
@@ -181,95 +233,120 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
     domain = get_domain(cfg.env.domain)
     ckpt_dir = run_dir / "checkpoints"
     run_id = run_dir.name
-    settings = RolloutSettings.from_config(cfg)
+    settings = RolloutSettings.of_run(cfg)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
     model = build_model_from_config(domain, cfg.model, seed=cfg.seed)
     learner = Learner(model, cfg.training, seed=cfg.seed)
     start_round, history = 0, []
+    owns_collector = collector is None
     if ckpt is not None:
         load_model_state(learner.model, ckpt, ckpt_dir / LATEST)
         learner.load_optimizer_state(ckpt.optimizer_state)
         restore_rng(ckpt.rng_state, learner.generator)
-        start_round, history = ckpt.round_index + 1, list(ckpt.history)
+        start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
         log.info("resuming %s at round %d", run_dir, start_round)
     save_config(cfg, run_dir / "config.yaml")
     mark_buffer(root, run_id)
 
-    owns_collector = collector is None
     if collector is None:
-        if serial:
-            collector = SerialCollector(domain.name, settings, root, run_id)
-        else:
-            from learner.distributed import RayCollector
-            collector = RayCollector(domain.name, settings, root, run_id, cfg.collection.num_workers, address,
-                                     cfg.collection.max_unit_retries)
+        collector = _make_collector(cfg, settings, root, run_id, serial=serial, address=address)
+    round_loop = _RoundLoop(cfg, domain, tasks, learner, collector, root, _Progress(progress))
     tb = _tensorboard(run_dir)
-    bars = _Progress(progress)
-    max_attempts = cfg.collection.num_corrections + 1 if learner.model.uses_corrections else 1
-    reader = BufferReader(root)
     try:
         for r in range(start_round, cfg.training.num_rounds):
-            version = r
-            metrics: dict = {"round": r}
-            t0 = time.perf_counter()
-            if r in committed_rounds(root):
-                log.info("round %d was committed before a restart; not collecting it again", r)
-                metrics["collected_tuples"] = None
-            else:
-                units = make_units(tasks, r, cfg, cfg.env.train_split, version)
-                bar = bars.collection(r, len(tasks))
-                tuples = [0]
-                failures: list = []
-
-                def on_result(res: UnitResult, bar=bar, tuples=tuples, failures=failures) -> None:
-                    tuples[0] += int(res.shard.num_tuples)
-                    failures.extend(res.failed_tasks)
-                    if bar is not None:
-                        bar.update(res.num_tasks)
-                        bar.set_postfix(tuples_per_s=f"{tuples[0] / max(time.perf_counter() - t0, 1e-9):.0f}")
-
-                results = collector.collect_round(units, learner.weights(), version, on_result)
-                if bar is not None:
-                    bar.close()
-                for task_id, message in failures:
-                    log.error("round %d: %s", r, message)
-                commit_round(root, r, [res.shard for res in results],
-                             extra={"policy_version": version, "failed_tasks": [t for t, _ in failures]})
-                metrics["collected_tuples"] = tuples[0]
-                metrics["failed_tasks"] = [t for t, _ in failures]
-            metrics["collection_seconds"] = time.perf_counter() - t0
-
-            t1 = time.perf_counter()
-            view = reader.load_training_view(cfg.buffer.capacity_tuples, domain.trajectory_stride,
-                                              cfg.model.trajectory_ends_at_last_state)
-            metrics["load_seconds"] = time.perf_counter() - t1
-            metrics["completion_by_corrections"] = completion_curve(reader, r, max_attempts)
-            bar = bars.training(r, cfg.training.num_epochs_per_round)
-
-            def on_epoch(epoch: int, loss: float, acc: float, bar=bar) -> None:
-                if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix(loss=f"{loss:.4f}", acc=f"{acc:.3f}")
-
-            stats = learner.train_round(view, on_epoch)
-            if bar is not None:
-                bar.close()
-            metrics.update(buffer_tuples=stats.num_states, loss=stats.loss, accuracy=stats.accuracy,
-                           train_seconds=stats.seconds, train_steps=stats.num_steps,
-                           correction_spread=stats.correction_spread)
+            metrics = round_loop.run(r)
             history.append(metrics)
             save_checkpoint(ckpt_dir, Checkpoint(
-                round_index=r, policy_version=version + 1, model_state=learner.model.state_dict(),
+                round_index=r, policy_version=r + 1, model_state=learner.model.state_dict(),
                 optimizer_state=learner.optimizer.state_dict(), rng_state=capture_rng(learner.generator),
-                config=config_to_dict(cfg), history=history))
+                config=config_to_dict(cfg), history=[m.to_dict() for m in history]))
             _log_round(run_dir, tb, metrics)
     finally:
         if tb is not None:
             tb.close()
         if owns_collector:
             collector.close()
-    return TrainingResult(run_dir, history)
+    return TrainingResult(run_dir, tuple(history))
+
+
+def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id: str, *, serial: bool,
+                    address: str | None):
+    if serial:
+        return SerialCollector(cfg.env.domain, settings, root, run_id)
+    from workers.ray_pool import RayCollector  # Ray is imported only where a run uses it
+    return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
+                        cfg.collection.max_unit_retries)
+
+
+class _RoundLoop:
+    """One DAgger round: collect with the current weights (unless committed before a restart),
+    commit, load the training view, train."""
+
+    def __init__(self, cfg: RunConfig, domain, tasks: tuple[int, ...], learner: Learner, collector, root: str,
+                 bars: "_Progress"):
+        self.cfg, self.domain, self.tasks, self.learner = cfg, domain, tasks, learner
+        self.collector, self.root, self.bars = collector, root, bars
+        self.reader = BufferReader(root)
+        self.max_attempts = cfg.collection.num_corrections + 1 if learner.model.uses_corrections else 1
+
+    def run(self, r: int) -> RoundMetrics:
+        t0 = time.perf_counter()
+        collected, failed = self._collect(r, t0)
+        collection_seconds = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        cfg = self.cfg
+        view = self.reader.load_training_view(cfg.buffer.capacity_tuples, self.domain.trajectory_stride,
+                                              cfg.model.trajectory_ends_at_last_state)
+        load_seconds = time.perf_counter() - t1
+        curve = completion_curve(self.reader, r, self.max_attempts)
+        stats = self._train(r, view)
+        return RoundMetrics(round_index=r, collected_tuples=collected, failed_tasks=failed,
+                            collection_seconds=collection_seconds, load_seconds=load_seconds,
+                            completion_by_corrections=tuple(curve), buffer_tuples=stats.num_states, loss=stats.loss,
+                            accuracy=stats.accuracy, train_seconds=stats.seconds, train_steps=stats.num_steps,
+                            correction_spread=stats.correction_spread)
+
+    def _collect(self, r: int, t0: float) -> tuple[int | None, tuple[int, ...]]:
+        """Collect and commit round ``r``; ``(tuples, failed task ids)``, or ``(None, ())`` when it was
+        committed before a restart."""
+        if r in committed_rounds(self.root):
+            log.info("round %d was committed before a restart; not collecting it again", r)
+            return None, ()
+        units = make_units(self.tasks, r, self.cfg, self.cfg.env.train_split, policy_version=r)
+        bar = self.bars.collection(r, len(self.tasks))
+        tuples = 0
+        failures: list[tuple[int, str]] = []  # (task id, message) of the tasks dropped so far
+
+        def on_result(res: UnitResult) -> None:
+            nonlocal tuples
+            tuples += int(res.shard.num_tuples)
+            failures.extend(res.failed_tasks)
+            if bar is not None:
+                bar.update(res.num_tasks)
+                bar.set_postfix(tuples_per_s=f"{tuples / max(time.perf_counter() - t0, 1e-9):.0f}")
+
+        results = self.collector.collect_round(units, self.learner.weights(), r, on_result)
+        if bar is not None:
+            bar.close()
+        for _, message in failures:
+            log.error("round %d: %s", r, message)
+        failed = tuple(t for t, _ in failures)
+        commit_round(self.root, r, [res.shard for res in results], extra={"policy_version": r, "failed_tasks": list(failed)})
+        return tuples, failed
+
+    def _train(self, r: int, view):
+        bar = self.bars.training(r, self.cfg.training.num_epochs_per_round)
+
+        def on_epoch(epoch: int, loss: float, acc: float) -> None:
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(loss=f"{loss:.4f}", acc=f"{acc:.3f}")
+
+        stats = self.learner.train_round(view, on_epoch)
+        if bar is not None:
+            bar.close()
+        return stats
 
 
 def _tensorboard(run_dir: Path):
@@ -280,12 +357,13 @@ def _tensorboard(run_dir: Path):
     return SummaryWriter(str(run_dir / "tb"))
 
 
-def format_round(m: dict) -> str:
-    curve = " ".join(f"c{k}={v:.3f}" for k, v in enumerate(m["completion_by_corrections"]))
-    collected = "resumed" if m.get("collected_tuples") is None else f"{m['collected_tuples']} tuples"
-    spread = m.get("correction_spread")
-    line = (f"round {m['round']}: {collected} in {m['collection_seconds']:.1f}s, buffer {m['buffer_tuples']}, "
-            f"train {m['train_seconds']:.1f}s loss {m['loss']:.4f} acc {m['accuracy']:.3f}"
+def format_round(m: RoundMetrics) -> str:
+    """The one-line summary of a round that ``gpl-dist train`` prints."""
+    curve = " ".join(f"c{k}={v:.3f}" for k, v in enumerate(m.completion_by_corrections))
+    collected = "resumed" if m.collected_tuples is None else f"{m.collected_tuples} tuples"
+    spread = m.correction_spread
+    line = (f"round {m.round_index}: {collected} in {m.collection_seconds:.1f}s, buffer {m.buffer_tuples}, "
+            f"train {m.train_seconds:.1f}s loss {m.loss:.4f} acc {m.accuracy:.3f}"
             + ("" if spread is None else f" corr-spread {spread:.3f}") + f" | train tasks {curve}")
     if spread is not None and spread < 1e-6:
         line += ("\nwarning: the correction module's output no longer varies between attempts (dead units);"
@@ -293,18 +371,18 @@ def format_round(m: dict) -> str:
     return line
 
 
-def _log_round(run_dir: Path, tb, m: dict) -> None:
+def _log_round(run_dir: Path, tb, m: RoundMetrics) -> None:
     with open(run_dir / "metrics.jsonl", "a") as fh:
-        fh.write(json.dumps(m) + "\n")
+        fh.write(json.dumps(m.to_dict()) + "\n")
     print(format_round(m), flush=True)
     if tb is not None:
-        r = m["round"]
-        tb.add_scalar("train/loss", m["loss"], r)
-        tb.add_scalar("train/accuracy", m["accuracy"], r)
-        if m.get("correction_spread") is not None:
-            tb.add_scalar("train/correction_spread", m["correction_spread"], r)
-        tb.add_scalar("collect/seconds", m["collection_seconds"], r)
-        tb.add_scalar("train/seconds", m["train_seconds"], r)
-        for k, v in enumerate(m["completion_by_corrections"]):
+        r = m.round_index
+        tb.add_scalar("train/loss", m.loss, r)
+        tb.add_scalar("train/accuracy", m.accuracy, r)
+        if m.correction_spread is not None:
+            tb.add_scalar("train/correction_spread", m.correction_spread, r)
+        tb.add_scalar("collect/seconds", m.collection_seconds, r)
+        tb.add_scalar("train/seconds", m.train_seconds, r)
+        for k, v in enumerate(m.completion_by_corrections):
             tb.add_scalar(f"completion/train_c{k}", v, r)
         tb.flush()

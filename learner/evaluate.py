@@ -22,23 +22,15 @@ from pathlib import Path
 import numpy as np
 
 from gpl_dist.config import RunConfig, config_from_dict
+from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
+from gpl_dist.errors import UsageError
+from gpl_dist.models.gpl import GPLPolicy, build_model_from_config
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from gpl_dist.errors import UsageError
 from learner.checkpoint import LATEST, load_checkpoint, load_model_state
-from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
-
-# Table 1 (GPL, c0..c5) and Table 3 (c7, c10) of the paper, mean completion on test tasks.
-PAPER_COMPLETION = {
-    "multiroom": {0: 0.066, 1: 0.46, 2: 0.65, 3: 0.73, 4: 0.77, 5: 0.82, 7: 0.83, 10: 0.86},
-    "relocation": {0: 0.65, 1: 0.80, 2: 0.84, 3: 0.85, 4: 0.88, 5: 0.90, 7: 0.91, 10: 0.95},
-}
-PAPER_BASELINES = {
-    "multiroom": {"instruction": 0.075, "full_information": 0.73},
-    "relocation": {"instruction": 0.64, "full_information": 0.96},
-}
+from workers.loop import Rollout
+from workers.rollout import completion_by_attempt
 
 
 @dataclass(frozen=True)
@@ -62,32 +54,39 @@ class EvalResult:
     seconds: float
 
 
-def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
+def evaluate_policy(cfg: RunConfig, model: GPLPolicy, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
                     max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
                     tasks: tuple[int, ...] | None = None) -> EvalResult:
-    """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them)."""
+    """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them).
+
+    ``model`` is rolled out as it is, in eval mode (its training mode is restored afterwards),
+    conditioned as the run's ``model`` section says; the run's oracle gives the corrections.
+    """
     domain = get_domain(cfg.env.domain)
     tasks = tasks or split_tasks(domain.name, split)
     if max_tasks:
         tasks = tasks[:max_tasks]
-    settings = RolloutSettings.from_config(cfg, num_corrections=num_corrections, greedy_actions=greedy,
-                                           label_states=False)
-    worker = RolloutWorker(domain, settings, worker_id="eval")
-    worker.set_weights(weights, 0)
+    rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
+                      end_aligned=cfg.model.trajectory_ends_at_last_state,
+                      full_information=cfg.model.variant == "full_information")
+    was_training = model.training
+    model.eval()
     start = time.perf_counter()
-    max_attempts = num_corrections + 1 if worker.model.uses_corrections else 1
+    max_attempts = num_corrections + 1 if model.uses_corrections else 1
     curves, successes = [], []
     for seed in seeds:
-        attempts = []
+        attempts: list = []
         for s in range(0, len(tasks), chunk):
-            attempts += worker.collect(tasks[s:s + chunk], split, derive_seed(seed, 0xE7A1))
+            attempts += rollout.run(tasks[s:s + chunk], num_corrections, derive_seed(seed, 0xE7A1), split=split,
+                                    policy_version=0).attempts
         curves.append(completion_by_attempt(attempts, max_attempts))
-        succ = {}
+        succ: dict[int, np.ndarray] = {}
         for a in attempts:
             succ.setdefault(a.task_id, np.zeros(max_attempts, dtype=bool))
             if a.success:
                 succ[a.task_id][a.attempt_index:] = True
         successes.append(np.mean(list(succ.values()), axis=0))
+    model.train(was_training)
     curves_arr = np.array(curves)
     return EvalResult(completion=curves_arr.mean(0).tolist(), completion_std=curves_arr.std(0).tolist(),
                       success=np.mean(successes, axis=0).tolist(), per_seed=curves_arr.tolist(),
@@ -95,7 +94,8 @@ def evaluate_policy(cfg: RunConfig, weights: dict, *, num_corrections: int, seed
 
 
 def format_table(domain: str, result: EvalResult) -> str:
-    paper = PAPER_COMPLETION.get(domain, {})
+    """The meta-test table: completion, its spread over seeds, success, and the paper's figure."""
+    paper = get_domain(domain).paper_completion
     lines = [f"{'corrections':>11} {'completion':>10} {'± std':>7} {'success':>8} {'paper':>6}"]
     for k, (c, sd, s) in enumerate(zip(result.completion, result.completion_std, result.success)):
         p = f"{paper[k]:.3f}" if k in paper else "-"
@@ -104,6 +104,7 @@ def format_table(domain: str, result: EvalResult) -> str:
 
 
 def plot(domain: str, result: EvalResult, path: Path, title: str) -> None:
+    """Completion against corrections beside the paper's, as a PNG at ``path``."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -111,8 +112,8 @@ def plot(domain: str, result: EvalResult, path: Path, title: str) -> None:
     ks = np.arange(len(result.completion))
     fig, ax = plt.subplots(figsize=(5, 3.5), dpi=120)
     ax.errorbar(ks, result.completion, yerr=result.completion_std, marker="o", capsize=3, label="gpl-dist")
-    paper = PAPER_COMPLETION.get(domain, {})
-    pk = [k for k in ks if k in paper]
+    paper = get_domain(domain).paper_completion
+    pk = [int(k) for k in ks if int(k) in paper]
     if pk:
         ax.plot(pk, [paper[k] for k in pk], "s--", color="grey", label="paper (GPL)")
     ax.set_xlabel("corrections")
@@ -158,7 +159,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
     seeds = tuple(seeds or cfg.eval.seeds)
     max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks
-    result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=k, seeds=seeds, split=split,
+    result = evaluate_policy(cfg, model, num_corrections=k, seeds=seeds, split=split,
                              max_tasks=max_tasks, greedy=greedy)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
                        checkpoint=checkpoint)
@@ -168,7 +169,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "greedy_actions": greedy, "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
-               "paper_completion": {str(k2): v for k2, v in PAPER_COMPLETION.get(cfg.env.domain, {}).items()}}
+               "paper_completion": {str(k2): v for k2, v in get_domain(cfg.env.domain).paper_completion.items()}}
     path = run_dir / f"{stem}.json"
     path.write_text(json.dumps(payload, indent=1) + "\n")
     plot(cfg.env.domain, result, path.with_suffix(".png"),

@@ -173,7 +173,7 @@ class Learner:
         if not self.model.uses_corrections:
             return None
         with torch.no_grad():
-            z = self.model.encode_conditioning(cond)[:, self.model.instruction.out_dim:]
+            z = self.model.encode_conditioning(cond)[:, self.model.instruction.out_dim:]  # type: ignore[operator,union-attr]
         z = z[(cond.slots >= 0).any(1)]
         if z.shape[0] < 2:
             return None

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import json
 import os
-import time
 from datetime import datetime, timezone
 from typing import Any, Sequence
 
+from gpl_dist.faults import fault_point
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve
 from storage.layout import (
@@ -36,7 +36,6 @@ from storage.layout import (
     staging_unit_dir,
 )
 from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest, mark_buffer
-from storage.writer import TEST_HOOK_ENV
 
 
 def _committed_file_path(rec: ShardRecord, f: ShardFile) -> str:
@@ -44,16 +43,6 @@ def _committed_file_path(rec: ShardRecord, f: ShardFile) -> str:
         key = f.path.split(f"/{OBS_DIR}/", 1)[1]
         return f"{committed_path('obs', rec.round_index, rec.unit_index)}/{key}"
     return committed_path(f.role, rec.round_index, rec.unit_index)
-
-
-def _commit_test_hook(stage: str) -> None:
-    hook = os.environ.get(TEST_HOOK_ENV, "")
-    name, _, arg = hook.partition(":")
-    if hook and name == stage:
-        with open(arg, "w") as fh:
-            fh.write(str(os.getpid()))
-        while True:
-            time.sleep(0.05)
 
 
 def _same_content(a: RoundManifest, records: Sequence[ShardRecord]) -> bool:
@@ -90,7 +79,8 @@ def _validate(loc: Location, round_index: int, records: Sequence[ShardRecord]) -
             try:
                 size = loc.size(f.path)
             except FileNotFoundError:
-                raise BufferIntegrityError(f"staged file {f.path} of unit {r.unit_index} is missing in {loc.url}", f.path) from None
+                raise BufferIntegrityError(f"staged file {f.path} of unit {r.unit_index} is missing in {loc.url}",
+                                           f.path) from None
             if size != f.nbytes:
                 raise BufferIntegrityError(f"staged file {f.path} has {size} bytes, record says {f.nbytes}", f.path)
     run_id = next(iter(run_ids)) if run_ids else ""
@@ -104,7 +94,7 @@ def _roll_forward(loc: Location, journal: dict[str, Any]) -> RoundManifest:
         if loc.exists(src):
             loc.move(src, dst)
             if first:
-                _commit_test_hook("pause-between-moves")
+                fault_point("commit.between_moves", round=manifest.round_index)
                 first = False
         elif not (loc.exists(dst) and loc.size(dst) == nbytes):
             raise BufferIntegrityError(

@@ -24,6 +24,7 @@ from storage.layout import TMP_PREFIX
 
 
 def sha256_hex(data: bytes | memoryview) -> str:
+    """The hex sha256 of ``data``."""
     return hashlib.sha256(data).hexdigest()
 
 

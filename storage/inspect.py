@@ -19,6 +19,7 @@ def _mib(n: int) -> str:
 
 
 def format_inspection(root: "str | os.PathLike[str] | Location", show_tasks: bool = False) -> str:
+    """A human summary of the committed buffer at ``root``: schemas, rounds, attempts, disk use."""
     loc = resolve(root)
     reader = BufferReader(loc)
     rounds = committed_rounds(loc)

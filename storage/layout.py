@@ -46,10 +46,12 @@ MAX_ATTEMPTS_PER_UNIT = 100_000
 
 
 def round_dir(round_index: int) -> str:
+    """The directory name of round ``round_index``."""
     return f"round-{round_index:06d}"
 
 
 def unit_name(unit_index: int) -> str:
+    """The file stem of unit ``unit_index``."""
     return f"unit-{unit_index:05d}"
 
 
@@ -64,6 +66,7 @@ def committed_path(role: str, round_index: int, unit_index: int) -> str:
 
 
 def staging_unit_dir(round_index: int, unit_index: int) -> str:
+    """The staging directory of one unit's tries."""
     return f"{STAGING}/{round_dir(round_index)}/{unit_name(unit_index)}"
 
 
@@ -74,24 +77,29 @@ def new_try_id(worker_id: str) -> str:
 
 
 def manifest_path(round_index: int) -> str:
+    """The committed manifest of a round (the commit point)."""
     return f"{MANIFESTS}/round-{round_index:06d}.json"
 
 
 def pending_path(round_index: int) -> str:
+    """The commit journal of a round."""
     return f"{MANIFESTS}/_pending-round-{round_index:06d}.json"
 
 
 def parse_manifest_name(name: str) -> int | None:
+    """The round of a manifest file name, or None."""
     m = _MANIFEST_RE.match(name)
     return int(m.group(1)) if m else None
 
 
 def parse_pending_name(name: str) -> int | None:
+    """The round of a commit journal's file name, or None."""
     m = _PENDING_RE.match(name)
     return int(m.group(1)) if m else None
 
 
 def parse_round_dir(name: str) -> int | None:
+    """The round of a round directory's name, or None."""
     m = re.match(r"^round-(\d{6,})$", name)
     return int(m.group(1)) if m else None
 

@@ -224,7 +224,7 @@ class BufferReader:
         loc = self.location
         rounds = self.committed_rounds()
         obs_shape: tuple[int, ...] = ()
-        obs_dtype = np.dtype(np.float32)
+        obs_dtype: np.dtype = np.dtype(np.float32)
         manifests: list[RoundManifest] = []
         tables: list[pa.Table] = []
         remaining = int(capacity_tuples)
@@ -256,10 +256,13 @@ class BufferReader:
             keep_masks.append(keep)
             if not keep.all():
                 break  # FIFO: part of this round did not fit, so nothing older is kept
-        manifests.reverse(), tables.reverse(), keep_masks.reverse()
+        manifests.reverse()
+        tables.reverse()
+        keep_masks.reverse()
         for m in manifests:
             if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (obs_shape, obs_dtype):
-                raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} differ from {obs_shape} {obs_dtype}")
+                raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} "
+                                           f"differ from {obs_shape} {obs_dtype}")
         if not tables:
             return _empty_view(obs_shape, obs_dtype, trajectory_stride, trajectory_end_aligned, ())
 
@@ -321,14 +324,14 @@ class BufferReader:
         off = 0
         probs_chunks: list[tuple[int, np.ndarray | None]] = []
         for m, t in zip(manifests, tables):
-            shards = {s.unit_index: s for s in m.shards}
+            shard_of_unit = {s.unit_index: s for s in m.shards}
             rows = np.arange(off, off + t.num_rows)
             for u in np.unique(units_all[rows]):
                 shard_rows = rows[units_all[rows] == u]
                 need = shard_rows[needed[shard_rows]]
                 if len(need) == 0:
                     continue
-                shard = shards[int(u)]
+                shard = shard_of_unit[int(u)]
                 z = open_shard_obs(loc, shard)
                 win = shard_rows[in_window[shard_rows]]
                 lo = hi = 0
@@ -339,16 +342,19 @@ class BufferReader:
                     take = np.concatenate([obs_start_all[i] + np.arange(lengths[new_row[i]]) for i in win]) - lo
                     m_rows = len(take)
                     contiguous = m_rows == hi - lo
-                    observations[pos : pos + m_rows] = z[lo:hi] if contiguous else z[lo:hi][take]
+                    block = np.asarray(z[lo:hi])
+                    observations[pos : pos + m_rows] = block if contiguous else block[take]
                     tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"],
                                            optional=["expert_probs"]).slice(lo, hi - lo)
                     if not contiguous:
                         tup = tup.take(pa.array(take))
                     if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(keys[win], lengths[new_row[win]])):
-                        raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
+                        tuples_path = shard.files_of("tuples")[0].path
+                        raise BufferIntegrityError(f"tuples of {tuples_path} disagree with its attempts table")
                     expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
                     actions[pos : pos + m_rows] = tup.column("action").to_numpy()
-                    probs_chunks.append((pos, _probs_rows(tup.column("expert_probs") if "expert_probs" in tup.column_names else None)))
+                    probs = tup.column("expert_probs") if "expert_probs" in tup.column_names else None
+                    probs_chunks.append((pos, _probs_rows(probs)))
                     for i in win:
                         j = new_row[i]
                         trajectories[j, : t_len[j]] = observations[tuple_start[j] + times(lengths[j])]
@@ -357,7 +363,7 @@ class BufferReader:
                 if len(ctx_only):
                     js = new_row[ctx_only]
                     gather = np.concatenate([obs_start_all[i] + times(lengths[j]) for i, j in zip(ctx_only, js)])
-                    got = z.oindex[gather] if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
+                    got = np.asarray(z.oindex[gather]) if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
                     g = 0
                     for j in js:
                         trajectories[j, : t_len[j]] = got[g : g + t_len[j]]

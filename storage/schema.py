@@ -67,6 +67,8 @@ TUPLES_SCHEMA = pa.schema(
 
 @dataclass(frozen=True)
 class UnitTables:
+    """One unit's attempts and tuples tables and its observations, ready to write."""
+
     attempts: pa.Table
     tuples: pa.Table
     observations: np.ndarray | None  # (N, *O); None when the unit has no attempts
@@ -124,6 +126,7 @@ def _probs_column(attempts: Sequence[Attempt], n: int) -> pa.Array:
 
 
 def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], worker_id: str) -> UnitTables:
+    """The tables and observation array of one unit's attempts."""
     n_att = len(attempts)
     ctx = context_keys_of(unit, attempts)
     lengths = np.array([a.length for a in attempts], dtype=np.int64)

@@ -57,6 +57,7 @@ def _grid_observations(rng: np.random.Generator, steps: int) -> np.ndarray:
 def make_attempt(
     rng: np.random.Generator, kind: str, task_id: int, k: int, steps: int, split: str = "train", policy_version: int = 0
 ) -> Attempt:
+    """A synthetic attempt with random observations (tests and benchmarks)."""
     if kind == GRID:
         obs = _grid_observations(rng, steps)
     elif kind == VECTOR:

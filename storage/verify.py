@@ -21,7 +21,17 @@ from dataclasses import dataclass
 
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve, sha256_hex
-from storage.layout import DATA, MANIFESTS, QUARANTINE, ROLES, TMP_PREFIX, manifest_path, parse_manifest_name, parse_round_dir, round_dir
+from storage.layout import (
+    DATA,
+    MANIFESTS,
+    QUARANTINE,
+    ROLES,
+    TMP_PREFIX,
+    manifest_path,
+    parse_manifest_name,
+    parse_round_dir,
+    round_dir,
+)
 from storage.manifest import RoundManifest, parse_manifest
 
 
@@ -74,6 +84,7 @@ class VerifyReport:
 
 
 def quarantined_rounds(root: "str | os.PathLike[str] | Location") -> tuple[int, ...]:
+    """Rounds set aside under ``quarantine/``, ascending."""
     loc = resolve(root)
     return tuple(sorted(r for r in map(parse_round_dir, loc.listdir(QUARANTINE)) if r is not None))
 

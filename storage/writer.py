@@ -9,7 +9,6 @@ directory, so a retried unit and a zombie first try never write the same file.
 from __future__ import annotations
 
 import os
-import time
 from typing import Sequence
 
 import numpy as np
@@ -19,6 +18,7 @@ import zarr
 from zarr.codecs import BloscCodec
 from zarr.storage import MemoryStore
 
+from gpl_dist.faults import fault_point
 from gpl_dist.records import Attempt, WorkUnit
 from storage.fs import Location, resolve, sha256_hex
 from storage.layout import (
@@ -34,17 +34,13 @@ from storage.layout import (
 from storage.manifest import ShardFile, ShardRecord
 from storage.schema import SCHEMA_VERSION, build_unit_tables
 
-#: Test hook: ``pause-before-publish:<signal-file>`` makes a writer create ``<signal-file>`` after all
-#: temporary files of a try are written and then sleep before renaming them into place (so a test
-#: can SIGKILL it there deterministically).
-TEST_HOOK_ENV = "GPL_DIST_STORAGE_TEST_HOOK"
-
 PARQUET_ROW_GROUP = 131_072
 #: Target uncompressed bytes of one zarr chunk of observations.
 OBS_CHUNK_BYTES = 4 << 20
 
 
 def parquet_bytes(table: pa.Table) -> bytes:
+    """``table`` as Parquet bytes, as the buffer writes every table."""
     sink = pa.BufferOutputStream()
     pq.write_table(table, sink, compression="zstd", row_group_size=PARQUET_ROW_GROUP)
     return sink.getvalue().to_pybytes()
@@ -56,8 +52,7 @@ def obs_compressor(dtype: np.dtype) -> BloscCodec:
     Measured on (7, 7, 6) uint8 grid windows: no shuffle 176 kB per 25k states, bit-shuffle 280 kB,
     lz4 600 kB, at equal speed (about 35 ms).
     """
-    shuffle = "noshuffle" if np.dtype(dtype).itemsize == 1 else "shuffle"
-    return BloscCodec(cname="zstd", clevel=3, shuffle=shuffle)
+    return BloscCodec(cname="zstd", clevel=3, shuffle="noshuffle" if np.dtype(dtype).itemsize == 1 else "shuffle")
 
 
 def zarr_files(observations: np.ndarray, attributes: dict) -> dict[str, bytes]:
@@ -77,18 +72,6 @@ def zarr_files(observations: np.ndarray, attributes: dict) -> dict[str, bytes]:
     if len(observations):
         arr[...] = observations
     return {k: v.to_bytes() for k, v in store_dict.items()}
-
-
-def _test_hook(stage: str) -> None:
-    hook = os.environ.get(TEST_HOOK_ENV, "")
-    if not hook:
-        return
-    name, _, arg = hook.partition(":")
-    if name == stage:
-        with open(arg, "w") as f:
-            f.write(str(os.getpid()))
-        while True:  # wait to be killed
-            time.sleep(0.05)
 
 
 class ShardWriter:
@@ -130,7 +113,7 @@ class ShardWriter:
         for name, role, data in payload:
             loc.write_bytes(f"{tmp_dir}/{name}", data)
             files.append(ShardFile(path=f"{final_dir}/{name}", role=role, nbytes=len(data), sha256=sha256_hex(data)))
-        _test_hook("pause-before-publish")
+        fault_point("writer.before_publish", round=unit.round_index, unit=unit.unit_index)
         loc.move(tmp_dir, final_dir)
         return ShardRecord(
             run_id=self.run_id,

@@ -57,7 +57,7 @@ def quiet_env(**extra: str) -> dict[str, str]:
     """The test's environment for child processes: one torch/OMP thread (2 shared cores)."""
     env = dict(os.environ)
     env.update(OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", RAY_DEDUP_LOGS="0", RAY_USAGE_STATS_ENABLED="0")
-    for k in ("RAY_ADDRESS", "GPL_DIST_WORKER_TEST_HOOK", "GPL_DIST_STORAGE_TEST_HOOK"):
+    for k in ("RAY_ADDRESS", "GPL_DIST_FAULT"):
         env.pop(k, None)
     env.update(extra)
     return env
@@ -155,7 +155,8 @@ def assert_buffer_exactly_once(root: Path, rounds: list[int], num_tasks: int = T
     assert {r for r, _ in per_task} == set(rounds)
     for r in rounds:
         tasks = {t for rr, t in per_task if rr == r}
-        assert len(tasks) == num_tasks - len(missing_tasks) and not tasks & set(missing_tasks), f"round {r}: tasks {sorted(tasks)}"
+        assert len(tasks) == num_tasks - len(missing_tasks) and not tasks & set(missing_tasks), \
+            f"round {r}: tasks {sorted(tasks)}"
     for key, ks in per_task.items():
         assert sorted(ks) == list(range(len(ks))), f"{key}: attempts {sorted(ks)}"
     return {"attempts": len(keys), "tasks_per_round": len(per_task) // len(rounds)}

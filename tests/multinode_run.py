@@ -8,7 +8,7 @@ and prints one JSON line ``RESULT {...}``. Modes:
 
 * ``spread``: worker nodes of 2 CPUs each, so both rollout actors would fit on one node; the
   collector's ``SPREAD`` strategy must put them on two.
-* ``node-loss``: worker nodes of 1 CPU each. ``GPL_DIST_WORKER_TEST_HOOK`` (set by the test) pauses
+* ``node-loss``: worker nodes of 1 CPU each. ``GPL_DIST_FAULT`` (set by the test) pauses
   one unit of round 0 mid-unit; the node running it is then removed. Its actor cannot restart
   anywhere (no free CPU left), so the other node must finish round 0 and round 1 alone.
 
@@ -27,6 +27,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _cluster_tools import TINY_YAML, free_ports
+
+from gpl_dist.faults import FAULT_ENV, PauseAt
 
 
 def _raylet_pid(node) -> int:
@@ -52,8 +54,8 @@ def main(mode: str, work: Path) -> None:
 
     from gpl_dist.config import config_from_dict
     from gpl_dist.domains import get_domain
-    from learner.distributed import RayCollector
     from learner.driver import buffer_root, run_training
+    from workers.ray_pool import RayCollector
     from workers.rollout import RolloutSettings
 
     temp_dir = os.path.join(os.environ["RAY_TMPDIR"], "ray")  # where Ray itself looks (ray_current_cluster)
@@ -62,7 +64,8 @@ def main(mode: str, work: Path) -> None:
     # No loopback binding here: a driver joining by address resolves 127.0.0.1 to the machine's IP.
     common = dict(temp_dir=temp_dir, object_store_memory=128 << 20)
     cluster = Cluster(initialize_head=True, head_node_args=dict(
-        num_cpus=0, gcs_server_port=gcs_port, include_dashboard=False, dashboard_port=dash_port, dashboard_agent_listen_port=agent_port, **common))
+        num_cpus=0, gcs_server_port=gcs_port, include_dashboard=False, dashboard_port=dash_port,
+        dashboard_agent_listen_port=agent_port, **common))
     node_cpus = 2 if mode == "spread" else 1
     workers = [cluster.add_node(num_cpus=node_cpus, **common) for _ in range(2)]
     out: dict = {"worker_nodes": [n.node_id for n in workers], "head_node": cluster.head_node.node_id}
@@ -71,7 +74,7 @@ def main(mode: str, work: Path) -> None:
         cluster.wait_for_nodes()
         cfg = config_from_dict(yaml.safe_load(TINY_YAML))
         run_dir = work / "run"
-        collector = RayCollector(get_domain(cfg.env.domain).name, RolloutSettings.from_config(cfg), buffer_root(cfg, run_dir),
+        collector = RayCollector(get_domain(cfg.env.domain).name, RolloutSettings.of_run(cfg), buffer_root(cfg, run_dir),
                                  run_dir.name, cfg.collection.num_workers, cluster.address, cfg.collection.max_unit_retries)
         import ray
 
@@ -79,9 +82,7 @@ def main(mode: str, work: Path) -> None:
         out["actor_nodes"] = ray.get([a.node_id.remote() for a in collector.actors])
         watcher = None
         if mode == "node-loss":
-            hook = os.environ["GPL_DIST_WORKER_TEST_HOOK"]
-            _, r, u, signal_dir = hook.split(":", 3)
-            signal_file = Path(signal_dir) / f"round-{r}-unit-{u}.pid"
+            signal_file = Path(PauseAt.parse(os.environ[FAULT_ENV]).signal_file)
 
             def remove_paused_node() -> None:
                 while not signal_file.exists():
@@ -98,7 +99,7 @@ def main(mode: str, work: Path) -> None:
         out["seconds"] = time.time() - t0
         if watcher is not None:
             watcher.join(5)
-        out["rounds"] = [m["round"] for m in result.history]
+        out["rounds"] = [m.round_index for m in result.history]
         out["unit_nodes"] = {f"{r}/{u}": n for (r, u), n in collector.unit_nodes.items()}
         out["unit_tries"] = {f"{r}/{u}": n for (r, u), n in collector.unit_tries.items()}
         out["replaced_actors"] = collector.replaced_actors

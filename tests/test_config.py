@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from gpl_dist.config import (ConfigError, RunConfig, config_to_dict, field_docs, load_config, save_config)
+from gpl_dist.config import ConfigError, RunConfig, config_to_dict, field_docs, load_config, save_config
 
 CONFIGS = sorted(Path(__file__).resolve().parents[1].joinpath("configs").glob("*.yaml"))
 SECTION_TYPES = [f.type for f in dataclasses.fields(RunConfig)]
@@ -11,7 +11,8 @@ SECTION_TYPES = [f.type for f in dataclasses.fields(RunConfig)]
 
 def _sections():
     cfg = RunConfig()
-    return [type(cfg)] + [type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg) if dataclasses.is_dataclass(getattr(cfg, f.name))]
+    return [type(cfg)] + [type(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)
+                          if dataclasses.is_dataclass(getattr(cfg, f.name))]
 
 
 @pytest.mark.parametrize("cls", _sections(), ids=lambda c: c.__name__)

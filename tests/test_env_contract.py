@@ -8,11 +8,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import gpl_dist  # noqa: F401  (registers the envs)
-from gpl_dist.domains import DOMAIN_NAMES, get_domain
+from gpl_dist.domains import BUILTIN_DOMAINS, get_domain
 from gpl_dist.envs import ENV_IDS
 from gpl_dist.splits import load_splits
 
-SPECS = {get_domain(name).env_id: get_domain(name) for name in DOMAIN_NAMES}
+SPECS = {get_domain(name).env_id: get_domain(name) for name in BUILTIN_DOMAINS}
 
 
 def test_every_domain_is_registered():

@@ -2,9 +2,9 @@
 ``gpl-dist train --resume``, a node removed mid-round, and a broken task.
 
 The first three run ``gpl-dist train`` / a multi-node driver in sessions the test starts
-(``start_new_session=True``, own ``RAY_TMPDIR``), and use the worker's test hook
-(``workers.rollout.TEST_HOOK_ENV``, inert unless set) to stop a chosen unit mid-way, so that each kill
-lands in the middle of a round deterministically. Exactly-once is checked on the committed buffer:
+(``start_new_session=True``, own ``RAY_TMPDIR``), and pause a chosen unit at the worker's fault point
+(``gpl_dist.faults``, given as ``GPL_DIST_FAULT``), so that each kill lands in the middle of a round
+deterministically. Exactly-once is checked on the committed buffer:
 one shard per unit in each manifest, no data file outside the manifests, every (round, task,
 attempt) once in the attempts table.
 """
@@ -37,7 +37,14 @@ from _cluster_tools import (
     wait_for,
 )
 
-from workers.rollout import TEST_HOOK_ENV
+from gpl_dist.faults import FAULT_ENV, PauseAt
+
+
+def _pause_unit(round_index: int, unit_index: int, signals: Path) -> str:
+    """``GPL_DIST_FAULT`` pausing the first try of one unit after collection; its pid goes to
+    ``signals/round-R-unit-U.pid``."""
+    signal_file = signals / f"round-{round_index}-unit-{unit_index}.pid"
+    return PauseAt("worker.unit_collected", str(signal_file), {"round": str(round_index), "unit": str(unit_index)}).spec()
 
 
 class _Driver:
@@ -79,7 +86,7 @@ def test_actor_killed_mid_round_is_restarted_and_its_unit_retried(tmp_path, tiny
     run_dir, signals = tmp_path / "run", tmp_path / "signals"
     signals.mkdir()
     driver = _Driver(["--config", str(tiny_config), "--run-dir", str(run_dir)], tmp_path / "driver.log",
-                     **{TEST_HOOK_ENV: f"pause-mid-unit:0:1:{signals}"})
+                     **{FAULT_ENV: _pause_unit(0, 1, signals)})
     try:
         pid_file = signals / "round-0-unit-1.pid"
         wait_for(pid_file, driver.proc)
@@ -105,7 +112,7 @@ def test_driver_killed_mid_round_resumes_from_last_committed_round(tmp_path, tin
     root = run_dir / "buffer"
     signals.mkdir()
     driver = _Driver(["--config", str(tiny_config), "--run-dir", str(run_dir)], tmp_path / "killed.log",
-                     **{TEST_HOOK_ENV: f"pause-mid-unit:1:0:{signals}"})
+                     **{FAULT_ENV: _pause_unit(1, 0, signals)})
     try:
         wait_for(signals / "round-1-unit-0.pid", driver.proc)
         # the other actor stages units 1 and 2 of round 1 meanwhile: wait for them, then kill
@@ -145,7 +152,7 @@ def test_driver_killed_mid_round_resumes_from_last_committed_round(tmp_path, tin
 def test_node_removed_mid_round_its_units_finish_elsewhere(tmp_path):
     signals = tmp_path / "signals"
     signals.mkdir()
-    res = run_multinode("node-loss", tmp_path, **{TEST_HOOK_ENV: f"pause-mid-unit:0:1:{signals}"})
+    res = run_multinode("node-loss", tmp_path, **{FAULT_ENV: _pause_unit(0, 1, signals)})
     survivor = set(res["worker_nodes"]) - {res["removed_node"]}
     assert res["removed_node"] in res["worker_nodes"] and len(survivor) == 1
     assert res["rounds"] == [0, 1]
@@ -159,7 +166,7 @@ def test_node_removed_mid_round_its_units_finish_elsewhere(tmp_path):
 def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch, caplog):
     """A task whose env cannot be built and one whose env raises mid-attempt (serial mode, so an
     in-process monkeypatch of the domain registry reaches the worker)."""
-    import learner.collectors
+    import workers.pool
     from gpl_dist.config import config_from_dict
     from learner.driver import run_training, training_tasks
     from storage import load_manifest
@@ -167,7 +174,7 @@ def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch
     cfg = config_from_dict(yaml.safe_load(TINY_YAML))
     tasks = training_tasks(cfg)
     bad_env, bad_step = tasks[1], tasks[4]
-    real_get_domain = learner.collectors.get_domain
+    real_get_domain = workers.pool.get_domain
 
     def broken_get_domain(name):
         domain = real_get_domain(name)
@@ -191,12 +198,12 @@ def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch
 
         return dataclasses.replace(domain, make_env=make_env)
 
-    monkeypatch.setattr(learner.collectors, "get_domain", broken_get_domain)
+    monkeypatch.setattr(workers.pool, "get_domain", broken_get_domain)
     with caplog.at_level(logging.ERROR):
         result = run_training(cfg, tmp_path / "run", serial=True, progress=False)
-    assert [m["round"] for m in result.history] == [0, 1]
+    assert [m.round_index for m in result.history] == [0, 1]
     for m in result.history:
-        assert sorted(m["failed_tasks"]) == sorted([bad_env, bad_step])
+        assert sorted(m.failed_tasks) == sorted([bad_env, bad_step])
     root = tmp_path / "run" / "buffer"
     for r in (0, 1):
         assert sorted(load_manifest(root, r).extra["failed_tasks"]) == sorted([bad_env, bad_step])

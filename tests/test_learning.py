@@ -24,13 +24,13 @@ def test_corrections_raise_completion_after_meta_training(tmp_path):
         "buffer": {"capacity_tuples": 40000},
     })
     run_training(cfg, tmp_path / "run", serial=True, progress=False)
-    from learner.checkpoint import load_checkpoint
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+    from gpl_dist.models.gpl import build_model
+    from learner.checkpoint import load_checkpoint
 
     model = build_model(get_domain("multiroom"))
     model.load_state_dict(load_checkpoint(tmp_path / "run" / "checkpoints").model_state)
-    result = evaluate_policy(cfg, state_dict_to_numpy(model), num_corrections=3, seeds=(0,), tasks=tuple(tasks))
+    result = evaluate_policy(cfg, model, num_corrections=3, seeds=(0,), tasks=tuple(tasks))
     with_corrections, without = result.completion[3], result.completion[0]
     print("completion after 0..3 corrections:", result.completion)
     assert with_corrections > without + 0.1, result.completion

@@ -185,6 +185,7 @@ def test_grid_encoder_is_a_conv2d_over_one_hot_channels(channels):
 
 def test_conv1d_channels_last_matches_conv1d():
     from torch import nn
+
     from gpl_dist.models.gpl import conv1d_k2_channels_last
     torch.manual_seed(0)
     conv = nn.Conv1d(16, 4, kernel_size=2)

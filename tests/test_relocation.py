@@ -13,8 +13,7 @@ import gpl_dist.envs  # noqa: F401  (registers gpl/Relocation-v0)
 from gpl_dist.corrections import make_corrector
 from gpl_dist.corrections.relocation import make_relocation_corrector
 from gpl_dist.domains import get_domain
-from gpl_dist.envs.relocation import (DOMAIN, FIXED_XY, MOVABLE_START, VOCABULARY, RelocationEnv, make_splits,
-                                      make_task)
+from gpl_dist.envs.relocation import DOMAIN, FIXED_XY, MOVABLE_START, VOCABULARY, RelocationEnv, make_splits, make_task
 from gpl_dist.experts import make_expert
 from gpl_dist.splits import load_splits, split_tasks
 

@@ -17,7 +17,8 @@ from gpl_dist.experts import make_expert
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import LearnedRelocationExpert, action_probs, load_weights, policy_inputs
 from gpl_dist.splits import split_tasks
-from workers.rollout import RolloutSettings, RolloutWorker
+from tests.test_rollout import worker_settings
+from workers.rollout import RolloutWorker
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -102,7 +103,7 @@ def test_unknown_expert_kinds_fail_with_the_known_ones(tmp_path):
 
 
 def test_worker_labels_with_the_configured_expert():
-    settings = RolloutSettings(num_corrections=0, expert="learned")
+    settings = worker_settings("relocation", num_corrections=0, expert="learned")
     worker = RolloutWorker(get_domain("relocation"), settings, worker_id="t")
     attempts = worker.collect(tuple(split_tasks("relocation", "train")[:2]), "train", 0)
     assert len(attempts) == 2

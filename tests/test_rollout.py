@@ -3,6 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from gpl_dist.config import CollectionConfig, EnvConfig, ModelConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import build_model, build_model_from_config, state_dict_to_numpy
 from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attempt
@@ -10,9 +11,22 @@ from workers.rollout import RolloutSettings, RolloutWorker, completion_by_attemp
 TASKS = (0, 5, 17, 400)
 
 
+def worker_settings(domain_name="multiroom", label_states=True, **kw) -> RolloutSettings:
+    """Worker settings from flat keywords, each put into the config section that owns it."""
+    sections = {"env": EnvConfig, "collection": CollectionConfig, "model": ModelConfig}
+    parts: dict = {name: {} for name in sections}
+    parts["env"]["domain"] = domain_name
+    for key, value in kw.items():
+        owners = [n for n, c in sections.items() if key in {f.name for f in dataclasses.fields(c)}]
+        if not owners:
+            raise TypeError(f"no config section has a field '{key}'")
+        parts[owners[0]][key] = value
+    return RolloutSettings(**{n: c(**parts[n]) for n, c in sections.items()}, label_states=label_states)
+
+
 def make_worker(domain_name="multiroom", seed=0, **kw):
     d = get_domain(domain_name)
-    w = RolloutWorker(d, RolloutSettings(**kw), worker_id="test")
+    w = RolloutWorker(d, worker_settings(domain_name, **kw), worker_id="test")
     w.set_weights(state_dict_to_numpy(build_model(d, kw.get("variant", "gpl"), seed=seed)), 0)
     return w
 
@@ -83,7 +97,7 @@ def test_failing_task_is_reported_and_others_continue():
         return d.make_env(task_id, **kw)
 
     broken = dataclasses.replace(d, make_env=make_env)
-    w = RolloutWorker(broken, RolloutSettings(num_corrections=1), worker_id="t")
+    w = RolloutWorker(broken, worker_settings(num_corrections=1), worker_id="t")
     w.set_weights(state_dict_to_numpy(build_model(d, seed=0)), 0)
     attempts = w.collect(TASKS, "train", seed=0)
     assert {a.task_id for a in attempts} == set(TASKS) - {5}
@@ -120,14 +134,16 @@ def test_settings_from_config_carry_the_run_and_the_overrides():
     from gpl_dist.config import load_config
 
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "relocation.yaml", {"collection.num_corrections": "3"})
-    s = RolloutSettings.from_config(cfg)
-    assert (s.num_corrections, s.expert, s.trajectory_ends_at_last_state, s.variant) == (3, "learned", True, "gpl")
-    assert s.policy_batchnorm
+    s = RolloutSettings.of_run(cfg)
+    assert (s.collection.num_corrections, s.env.expert, s.model.trajectory_ends_at_last_state, s.model.variant) == \
+        (3, "learned", True, "gpl")
+    assert s.model.policy_batchnorm
     # the worker builds the learner's architecture: the driver's weights load strictly
     learner_model = build_model_from_config(get_domain("relocation"), cfg.model, seed=0)
     RolloutWorker(get_domain("relocation"), s, worker_id="test").set_weights(state_dict_to_numpy(learner_model), 0)
-    meta_test = RolloutSettings.from_config(cfg, num_corrections=5, greedy_actions=True, label_states=False)
-    assert (meta_test.num_corrections, meta_test.greedy_actions, meta_test.label_states) == (5, True, False)
-    assert meta_test.trajectory_ends_at_last_state  # evaluation conditions the policy as collection did
+    meta_test = dataclasses.replace(s, collection=dataclasses.replace(s.collection, num_corrections=5, greedy_actions=True),
+                                    label_states=False)
+    assert (meta_test.collection.num_corrections, meta_test.collection.greedy_actions, meta_test.label_states) == (5, True, False)
+    assert meta_test.model.trajectory_ends_at_last_state  # evaluation conditions the policy as collection did
     with pytest.raises(TypeError):
-        RolloutSettings.from_config(cfg, not_a_setting=1)
+        dataclasses.replace(s, not_a_setting=1)

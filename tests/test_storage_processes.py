@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.dataset as ds
 
+from gpl_dist.faults import FAULT_ENV, PauseAt
 from storage import BufferReader, ShardWriter, clean_leftovers, commit_round, committed_rounds, load_manifest
 from storage.layout import attempt_key
 from storage.synthetic import GRID, synthetic_unit
-from storage.writer import TEST_HOOK_ENV
 
 CTX = mp.get_context("spawn")
 
@@ -32,14 +32,14 @@ def _commit(root: str, round_index: int, records) -> None:
     commit_round(root, round_index, records)
 
 
-def _run_until_signal(target, args, signal_file: Path, hook: str) -> None:
-    """Start ``target`` in a spawned process with the test hook on, SIGKILL it once it pauses."""
-    os.environ[TEST_HOOK_ENV] = f"{hook}:{signal_file}"
+def _run_until_signal(target, args, signal_file: Path, point: str) -> None:
+    """Start ``target`` in a spawned process that pauses at fault point ``point``; SIGKILL it there."""
+    os.environ[FAULT_ENV] = PauseAt(point, str(signal_file)).spec()
     try:
         proc = CTX.Process(target=target, args=args)
         proc.start()
     finally:
-        del os.environ[TEST_HOOK_ENV]
+        del os.environ[FAULT_ENV]
     deadline = time.monotonic() + 30
     while not signal_file.exists():
         assert proc.is_alive() and time.monotonic() < deadline, "child did not reach the hook"
@@ -58,7 +58,7 @@ def test_writer_killed_mid_shard_leaves_no_visible_debris(tmp_path):
     rec0 = _write_units(str(root), 0, [0, 1], "w0")
     commit_round(root, 0, rec0)
     n0 = sum(r.num_tuples for r in rec0)
-    _run_until_signal(_write_units, (str(root), 1, [0], "doomed"), tmp_path / "paused", "pause-before-publish")
+    _run_until_signal(_write_units, (str(root), 1, [0], "doomed"), tmp_path / "paused", "writer.before_publish")
 
     # the killed try left temp files in staging only; readers and datasets see round 0 alone
     debris = [p for p in (root / "staging").rglob("*") if p.is_file()]
@@ -88,7 +88,7 @@ def test_driver_killed_between_moves_is_rolled_forward(tmp_path):
     root = tmp_path / "run"
     commit_round(root, 0, _write_units(str(root), 0, [0], "w"))
     rec1 = _write_units(str(root), 1, [0, 1], "w")
-    _run_until_signal(_commit, (str(root), 1, rec1), tmp_path / "paused", "pause-between-moves")
+    _run_until_signal(_commit, (str(root), 1, rec1), tmp_path / "paused", "commit.between_moves")
     assert committed_rounds(root) == [0]
     assert (root / "manifests" / "_pending-round-000001.json").exists()
     assert BufferReader(root).load_training_view().rounds == (0,)

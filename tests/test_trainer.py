@@ -8,10 +8,10 @@ from torch import nn
 from gpl_dist.config import TrainingConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.records import WorkUnit
 from learner.batches import TensorView
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter, commit_round
-from gpl_dist.records import WorkUnit
 from tests.test_rollout import make_worker
 
 
@@ -89,7 +89,7 @@ def test_training_is_deterministic(tmp_path):
 
 def test_correction_spread_reports_a_dead_correction_module(tmp_path):
     from learner.batches import TensorView
-    from learner.driver import format_round
+    from learner.driver import RoundMetrics, format_round
 
     tv = TensorView.from_view(_view(tmp_path))
     learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg())
@@ -100,9 +100,9 @@ def test_correction_spread_reports_a_dead_correction_module(tmp_path):
         last.weight.zero_()
         last.bias.fill_(-1.0)
     assert learner.correction_spread(cond) == 0.0
-    line = format_round({"round": 3, "collected_tuples": 10, "collection_seconds": 1.0, "buffer_tuples": 10,
-                         "train_seconds": 1.0, "loss": 1.0, "accuracy": 0.5, "completion_by_corrections": [0.1],
-                         "correction_spread": 0.0})
+    line = format_round(RoundMetrics(round_index=3, collected_tuples=10, failed_tasks=(), collection_seconds=1.0,
+                                     load_seconds=0.1, completion_by_corrections=(0.1,), buffer_tuples=10, loss=1.0,
+                                     accuracy=0.5, train_seconds=1.0, train_steps=1, correction_spread=0.0))
     assert "cannot use corrections" in line
     no_corrections = Learner(build_model(get_domain("multiroom"), "instruction_only", seed=0), _cfg())
     assert no_corrections.correction_spread(cond) is None

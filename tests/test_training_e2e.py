@@ -38,7 +38,7 @@ def tuples_per_round(run_dir):
 
 def test_serial_run_commits_every_round_and_checkpoints(tmp_path):
     result = run_training(tiny(), tmp_path / "serial", serial=True, progress=False)
-    assert [m["round"] for m in result.history] == [0, 1]
+    assert [m.round_index for m in result.history] == [0, 1]
     counts = tuples_per_round(tmp_path / "serial")
     assert sorted(counts) == [0, 1]
     # 6 tasks x at most 3 attempts x 100 states
@@ -61,20 +61,20 @@ def test_resume_continues_at_the_next_round(tmp_path):
     run_training(tiny(**{"training.num_rounds": 1}), run_dir, serial=True, progress=False)
     assert load_checkpoint(run_dir / "checkpoints").round_index == 0
     result = run_training(tiny(), run_dir, serial=True, progress=False, resume=True)
-    assert [m["round"] for m in result.history] == [0, 1]
+    assert [m.round_index for m in result.history] == [0, 1]
     assert load_checkpoint(run_dir / "checkpoints").round_index == 1
     assert sorted(tuples_per_round(run_dir)) == [0, 1]
     # same as an uninterrupted run, round for round
     straight = run_training(tiny(), tmp_path / "straight", serial=True, progress=False)
     assert tuples_per_round(run_dir) == tuples_per_round(tmp_path / "straight")
-    assert np.allclose([m["loss"] for m in result.history], [m["loss"] for m in straight.history], rtol=1e-4)
+    assert np.allclose([m.loss for m in result.history], [m.loss for m in straight.history], rtol=1e-4)
 
 
 @pytest.mark.ray
 def test_ray_run_matches_serial_row_counts(tmp_path, ray_cluster):
     serial = run_training(tiny(), tmp_path / "serial", serial=True, progress=False)
     on_ray = run_training(tiny(), tmp_path / "ray", serial=False, progress=False)
-    assert [m["round"] for m in on_ray.history] == [0, 1]
+    assert [m.round_index for m in on_ray.history] == [0, 1]
     assert tuples_per_round(tmp_path / "ray") == tuples_per_round(tmp_path / "serial")
-    assert np.allclose([m["completion_by_corrections"] for m in on_ray.history],
-                       [m["completion_by_corrections"] for m in serial.history])
+    assert np.allclose([m.completion_by_corrections for m in on_ray.history],
+                       [m.completion_by_corrections for m in serial.history])

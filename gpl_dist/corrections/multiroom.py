@@ -50,10 +50,11 @@ from typing import Any
 
 import numpy as np
 
+from gpl_dist.envs.multiroom import CORRECTION_KINDS
 from gpl_dist.envs.multiroom_core import DOOR_CELL, REGION_FLAT, XY, compass
 from gpl_dist.records import Correction
 
-KINDS = ("default", "subgoal", "directional", "binary", "all", "reward")
+KINDS = CORRECTION_KINDS  # declared with the domain
 _NUMBERS = ("zero", "one", "two", "three", "four", "five")
 DONE_TEXT = "you are done"
 
@@ -65,6 +66,7 @@ def _state(env: Any):
 
 
 def subgoal_correction(env: Any) -> Correction:
+    """The first subgoal of the original plan that the attempt never achieved (the paper's oracle)."""
     u, k = _state(env)
     if u.success or k >= 5:
         return Correction(DONE_TEXT, "subgoal")
@@ -72,6 +74,7 @@ def subgoal_correction(env: Any) -> Correction:
 
 
 def directional_correction(env: Any) -> Correction:
+    """The compass direction of the next subgoal's target from the agent's final cell (``directional``)."""
     u, k = _state(env)
     if u.success or k >= 5:
         return Correction(DONE_TEXT, "directional")
@@ -91,6 +94,7 @@ def directional_correction(env: Any) -> Correction:
 
 
 def binary_correction(env: Any) -> Correction:
+    """One yes/no fact about the final state relevant to the next subgoal (module docstring: ``binary``)."""
     u, k = _state(env)
     if u.success or k >= 5:
         return Correction(DONE_TEXT, "binary")
@@ -117,11 +121,13 @@ def binary_correction(env: Any) -> Correction:
 
 
 def reward_correction(env: Any) -> Correction:
+    """``reward <n> of five``: the subgoals completed, in words (the reward variant)."""
     u, k = _state(env)
     return Correction(f"reward {_NUMBERS[min(k, 5)]} of five", "reward")
 
 
 def full_information(env: Any) -> str:
+    """Every subgoal of the task's plan, joined by ``then``."""
     u = getattr(env, "unwrapped", env)
     return " then ".join(u.subgoal_texts)
 

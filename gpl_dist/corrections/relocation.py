@@ -32,13 +32,20 @@ from typing import Any
 
 import numpy as np
 
-from gpl_dist.envs.relocation import (DIGIT_WORDS, FIXED_COLORS, FIXED_XY, MOVABLE_COLORS, direction_phrase,
-                                      spell_number)
+from gpl_dist.envs.relocation import (
+    CORRECTION_KINDS,
+    DIGIT_WORDS,
+    FIXED_COLORS,
+    FIXED_XY,
+    MOVABLE_COLORS,
+    direction_phrase,
+    spell_number,
+)
 from gpl_dist.records import Correction
 
 TOUCH_MIN_MOVE = 0.03
 A_LITTLE = 0.3
-KINDS = ("default", "mixed", "directional", "relational", "touch", "reward")
+KINDS = CORRECTION_KINDS  # declared with the domain
 
 
 def _state(env: Any):
@@ -57,11 +64,13 @@ def touch_needed(env: Any) -> bool:
 
 
 def touch_text(env: Any) -> str:
+    """``Touch the <colour> block``: the block the attempt should have moved."""
     _, task, _, _ = _state(env)
     return f"Touch the {task.block_color} block"
 
 
 def directional_text(env: Any) -> str:
+    """``Move a little/a lot <dir>``: the way from where the goal block ended to the target."""
     _, task, blocks, target = _state(env)
     d = target - blocks[task.block]
     amount = "a little" if math.hypot(*d) < A_LITTLE else "a lot"
@@ -78,6 +87,7 @@ def relational_text(env: Any, rank: int) -> str:
 
 
 def closer_text(env: Any) -> str:
+    """``Move closer to the <colour> block``: the fixed block minimising its distance to the target plus to the goal block."""
     _, task, blocks, target = _state(env)
     cost = np.hypot(*(FIXED_XY - target).T) + np.hypot(*(FIXED_XY - blocks[task.block]).T)
     return f"Move closer to the {FIXED_COLORS[int(np.argmin(cost))]} block"
@@ -90,6 +100,7 @@ def reward_text(env: Any) -> str:
 
 
 def full_information_text(env: Any) -> str:
+    """Which block to move and the exact target, digits spelt out (module docstring)."""
     _, task, _, target = _state(env)
     return f"move {MOVABLE_COLORS[task.block]} to x {spell_number(target[0])} y {spell_number(target[1])}"
 
@@ -134,4 +145,5 @@ class RelocationCorrector:
 
 
 def make_relocation_corrector(kind: str = "default") -> RelocationCorrector:
+    """The relocation oracle of ``kind`` (``default`` and ``mixed`` are the paper's)."""
     return RelocationCorrector(kind)

@@ -1,18 +1,10 @@
-"""Gymnasium registration of the two domains.
+"""Gymnasium registration of the built-in domains.
 
+``import gpl_dist.envs`` registers every built-in domain (``gpl_dist.domains``), so that
 ``gymnasium.make("gpl/MultiRoom-v0", task_id=17)`` and ``gymnasium.make("gpl/Relocation-v0",
-task_id=3)`` build one task's env; the TimeLimit wrapper applies the paper's episode lengths.
+task_id=3)`` build one task's env; the TimeLimit wrapper applies each domain's episode length.
 """
 
-from gymnasium.envs.registration import register, registry
+from gpl_dist.domains import BUILTIN_DOMAINS, get_domain
 
-_ENVS = {
-    "gpl/MultiRoom-v0": ("gpl_dist.envs.multiroom:MultiRoomEnv", 100),
-    "gpl/Relocation-v0": ("gpl_dist.envs.relocation:RelocationEnv", 350),
-}
-
-for _env_id, (_entry_point, _max_steps) in _ENVS.items():
-    if _env_id not in registry:
-        register(id=_env_id, entry_point=_entry_point, max_episode_steps=_max_steps)
-
-ENV_IDS = tuple(_ENVS)
+ENV_IDS = tuple(get_domain(name).env_id for name in BUILTIN_DOMAINS)

@@ -12,10 +12,12 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from gpl_dist.envs.modes import check_modes
 from gpl_dist.envs.multiroom_core import (
     ACTION_DROP,
     ACTION_PICKUP,
     COLOURS,
+    D_OPEN,
     DOOR_CELL,
     DOOR_INDEX_FLAT,
     K_FLOOR,
@@ -26,19 +28,18 @@ from gpl_dist.envs.multiroom_core import (
     SHAPES,
     START_CELL,
     STEP,
+    VIEW,
     VIS_LUT,
     VIS_REGION,
-    VIEW,
     XY,
-    D_OPEN,
     MultiRoomTask,
     check_task_id,
     get_task,
     task_static,
 )
-from gpl_dist.envs.modes import check_modes
 from gpl_dist.language import Vocabulary
-from gpl_dist.roles import DomainSpec
+from gpl_dist.models.sizes import Sizes
+from gpl_dist.roles import DomainSpec, lazy
 
 __all__ = ["MultiRoomEnv", "MultiRoomTask", "VOCABULARY", "DOMAIN", "make_env", "make_splits",
            "HELDOUT_OBJECTS", "MAX_STEPS"]
@@ -57,6 +58,9 @@ WORDS = (
     "reward", "of", "zero", "one", "two", "three", "four", "five",
 )
 VOCABULARY = Vocabulary(words=WORDS, max_tokens=32)
+
+#: Correction oracle kinds (``gpl_dist.corrections.multiroom``): ``default`` is the paper's subgoal oracle.
+CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward")
 
 #: (colour, shape) combinations held out by the ``heldout_*`` splits (paper Table 5).
 HELDOUT_OBJECTS = (("green", "triangle"), ("red", "ball"))
@@ -407,8 +411,7 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
             heldout_test.append(t)
         elif not any((o.colour, o.shape) in held for o in objs):
             clean.append(t)
-    clean = np.asarray(clean)
-    heldout_train = clean[rng.permutation(len(clean))[:1700]]
+    heldout_train = np.asarray(clean)[rng.permutation(len(clean))[:1700]]
     return {
         "train": sorted(int(t) for t in perm[:1700]),
         "test": sorted(int(t) for t in perm[1700:1950]),
@@ -436,6 +439,18 @@ DOMAIN = DomainSpec(
     vocabulary=VOCABULARY,
     make_env=make_env,
     split_names=("train", "valid", "test", "heldout_train", "heldout_test"),
+    experts={"scripted": lazy("gpl_dist.experts.multiroom:MultiRoomExpert")},
+    correction_kinds=CORRECTION_KINDS,
+    make_corrector=lazy("gpl_dist.corrections.multiroom:make_multiroom_corrector"),
+    model_sizes=Sizes(
+        state_channels=(8, 8), state_mlp=(32, 32),
+        traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),
+        text_conv=4, correction_mlp=(16, 4), instruction_mlp=(16, 32),
+        pair_mlp=(32, 32), pair_final_relu=True, policy_mlp=(64, 64),
+    ),
+    # Table 1 (GPL, c0..c5) and Table 3 (c7, c10); Table 1's baselines
+    paper_completion={0: 0.066, 1: 0.46, 2: 0.65, 3: 0.73, 4: 0.77, 5: 0.82, 7: 0.83, 10: 0.86},
+    paper_baselines={"instruction": 0.075, "full_information": 0.73},
     # codes per channel: type 0..7, colour 0..6, door 0..2, carried type 0..6, carried colour 0..6, flag 0..1
     obs_categories=(8, 7, 3, 7, 7, 2),
 )

@@ -168,6 +168,8 @@ VIS_LUT = _build_vis_lut()
 
 @dataclass(frozen=True)
 class ObjectSpec:
+    """One object of a task: its colour, shape, room and cell."""
+
     colour: str
     shape: str
     room: int
@@ -180,6 +182,8 @@ class ObjectSpec:
 
 @dataclass(frozen=True)
 class GoalSpec:
+    """One goal square of a task: its colour, room and cell."""
+
     colour: str
     room: int
     cell: int
@@ -232,6 +236,7 @@ class MultiRoomTask:
 
 
 def check_task_id(task_id) -> int:
+    """``task_id`` as an int; ``ValueError`` unless it is one of the domain's tasks."""
     if isinstance(task_id, (bool, np.bool_)) or not isinstance(task_id, (int, np.integer)):
         raise ValueError(f"multiroom task_id must be an int in 0..{NUM_TASKS - 1}, got {task_id!r}")
     if not 0 <= int(task_id) < NUM_TASKS:
@@ -283,6 +288,7 @@ def get_task(task_id: int) -> MultiRoomTask:
 
 
 def subgoal_texts(task: MultiRoomTask) -> tuple[str, ...]:
+    """The five subgoals of the task's plan from the start state, as text."""
     return (
         f"enter the {COLOURS[task.obj_room]} room",
         f"pick up the {task.obj_colour} {task.obj_shape}",

@@ -20,8 +20,8 @@ from minigrid.utils.rendering import (
 
 from gpl_dist.envs.multiroom_core import (
     COLOURS,
-    KIND,
     K_WALL,
+    KIND,
     SIZE,
     T_BALL,
     T_SQUARE,
@@ -84,6 +84,7 @@ def tile(kind: str, colour: int, shape: int, door_open: bool, agent: bool, carri
 
 @lru_cache(maxsize=1)
 def background() -> np.ndarray:
+    """The RGB picture of the walls and doors, shared by every task."""
     img = np.zeros((SIZE * TILE, SIZE * TILE, 3), dtype=np.uint8)
     for y in range(SIZE):
         for x in range(SIZE):

@@ -10,44 +10,38 @@ the authors' learned experts; ``gpl_dist.experts.relocation_learned``).
 
 from __future__ import annotations
 
-import importlib
 from typing import Any
 
+from gpl_dist.domains import get_domain
 from gpl_dist.roles import Expert
-
-_EXPERTS = {
-    "multiroom": {"scripted": "gpl_dist.experts.multiroom:MultiRoomExpert"},
-    "relocation": {"scripted": "gpl_dist.experts.relocation:RelocationExpert",
-                   "learned": "gpl_dist.experts.relocation_learned:LearnedRelocationExpert"},
-}
 
 
 def expert_kinds(domain: str) -> tuple[str, ...]:
-    """The expert kinds ``make_expert`` accepts for ``domain``."""
-    if domain not in _EXPERTS:
-        raise ValueError(f"unknown domain '{domain}' (known: {', '.join(_EXPERTS)})")
-    return tuple(_EXPERTS[domain])
+    """The expert kinds ``make_expert`` accepts for ``domain`` (the first is the default)."""
+    return tuple(get_domain(domain).experts)
 
 
 def check_expert_kind(domain: str, kind: str) -> None:
     """Raise ``ValueError`` naming the known kinds unless ``domain`` has an expert of ``kind``."""
-    if domain not in _EXPERTS:
-        raise ValueError(f"unknown domain '{domain}' (known: {', '.join(_EXPERTS)})")
-    if kind not in _EXPERTS[domain]:
-        raise ValueError(f"unknown expert '{kind}' for {domain} (known: {', '.join(_EXPERTS[domain])})")
+    kinds = expert_kinds(domain)
+    if kind not in kinds:
+        raise ValueError(f"unknown expert '{kind}' for {domain} (known: {', '.join(kinds)})")
 
 
 def domain_of(env: Any) -> str:
     """The domain name of a (possibly wrapped) gpl-dist env."""
     name = getattr(getattr(env, "unwrapped", env), "domain_name", None)
-    if name not in _EXPERTS:
-        raise TypeError(f"{type(env).__name__} is not a gpl-dist env (no known domain_name)")
-    return name
+    try:
+        get_domain(str(name))
+    except ValueError:
+        raise TypeError(f"{type(env).__name__} is not a gpl-dist env (no known domain_name)") from None
+    return str(name)
 
 
-def make_expert(env: Any, kind: str = "scripted") -> Expert:
-    """The ``kind`` expert for ``env``'s domain (one instance can serve every task of the domain)."""
+def make_expert(env: Any, kind: str | None = None) -> Expert:
+    """The ``kind`` expert for ``env``'s domain (default: the domain's first kind, ``scripted`` for
+    the built-in domains); one instance can serve every task of the domain."""
     domain = domain_of(env)
+    kind = kind or expert_kinds(domain)[0]
     check_expert_kind(domain, kind)
-    module, cls = _EXPERTS[domain][kind].split(":")
-    return getattr(importlib.import_module(module), cls)()
+    return get_domain(domain).experts[kind]()

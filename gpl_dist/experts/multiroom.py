@@ -101,6 +101,7 @@ def clear_cache() -> None:
 
 
 def cache_size() -> int:
+    """Distance maps cached so far, one per (target, door mask) (for tests and benchmarks)."""
     return len(_MAPS)
 
 

@@ -126,7 +126,7 @@ def _footprint(move: int) -> np.ndarray:
 _FOOTPRINTS = [_footprint(k) for k in range(4)]
 
 
-def _shift(a: np.ndarray, di: int, dj: int, fill: float) -> np.ndarray:
+def _shift(a: np.ndarray, di: int, dj: int, fill: float | np.floating) -> np.ndarray:
     """out[i, j] = a[i + di, j + dj] (fill outside)."""
     out = np.full_like(a, fill)
     nx, ny = a.shape

@@ -5,7 +5,8 @@ Three modules:
 - **instruction module**: shared word embeddings -> 1-D CNN -> MLP, giving ``z_im``;
 - **correction module**: for every earlier attempt ``j`` of the task, its trajectory subsampled every
   ``trajectory_stride`` states (``gpl_dist.roles.trajectory_times``: from t = 0, or ending at the
-  attempt's last state with ``ModelConfig.trajectory_ends_at_last_state``) goes through a per-state encoder and a 1-D CNN over time -> MLP; the
+  attempt's last state with ``ModelConfig.trajectory_ends_at_last_state``) goes through a per-state
+  encoder and a 1-D CNN over time -> MLP; the
   correction given after it goes through the shared embeddings, a 1-D CNN and an MLP; each
   (trajectory, correction) pair goes through an MLP, and the pairs are averaged: ``z_cm``;
 - **policy module**: state encoder, concatenated with ``z_im`` and ``z_cm`` -> MLP -> action logits.
@@ -27,46 +28,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec
 
 VARIANTS_WITHOUT_CORRECTIONS = ("instruction_only", "full_information")
-
-
-@dataclass(frozen=True)
-class Sizes:
-    """Layer sizes of one domain (appendix values)."""
-
-    state_channels: tuple[int, ...]  # 2-D CNN filters of the policy's state encoder (grid obs)
-    state_mlp: tuple[int, ...]
-    traj_state_channels: tuple[int, ...]  # 2-D CNN filters of the per-state trajectory encoder
-    traj_state_mlp: tuple[int, ...]
-    traj_conv: int  # 1-D CNN filters over time
-    traj_mlp: tuple[int, ...]
-    text_conv: int  # 1-D CNN filters over words
-    correction_mlp: tuple[int, ...]
-    instruction_mlp: tuple[int, ...]
-    pair_mlp: tuple[int, ...]
-    # whether the pair MLP's last layer has a ReLU. Relocation: no. With it, all 32 output units
-    # of that layer died in round 1 of one run (relocation's early corrections carry little
-    # signal) and a dead layer never recovers: the policy then ignored every correction.
-    pair_final_relu: bool
-    policy_mlp: tuple[int, ...]
-
-
-SIZES = {
-    "multiroom": Sizes(
-        state_channels=(8, 8), state_mlp=(32, 32),
-        traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),
-        text_conv=4, correction_mlp=(16, 4), instruction_mlp=(16, 32),
-        pair_mlp=(32, 32), pair_final_relu=True, policy_mlp=(64, 64),
-    ),
-    "relocation": Sizes(
-        state_channels=(), state_mlp=(),
-        traj_state_channels=(), traj_state_mlp=(), traj_conv=8, traj_mlp=(16, 8),
-        text_conv=4, correction_mlp=(16, 16), instruction_mlp=(16, 16),
-        pair_mlp=(32, 32), pair_final_relu=False, policy_mlp=(256, 256, 256),
-    ),
-}
 
 
 @dataclass(frozen=True)
@@ -272,13 +237,15 @@ class GridStateEncoder(nn.Module):
     def group_tables(self) -> torch.Tensor:
         """``(R, 4 * out)``: the first layer's projection of every code combination of every
         channel group (groups stacked), i.e. ``convs[0].proj`` of the combination's one-hot."""
-        weight_t = self.convs[0].proj.weight.t()  # (num_inputs, 4 * out)
+        weight_t = self.convs[0].proj.weight.t()  # type: ignore[union-attr,operator]  # (num_inputs, 4 * out)
         return torch.cat([weight_t[getattr(self, f"group_columns_{i}")].sum(1) for i in range(len(self.groups))])
 
     def group_rows(self, obs: torch.Tensor) -> torch.Tensor:
         """int64 ``(B, H, W, G)``: each cell's row of ``group_tables`` per channel group."""
         # one small matmul gives every group's combination index (exact: indices stay below 2^24)
-        return (obs.to(self.row_weights.dtype) @ self.row_weights).long() + self.group_starts
+        # registered buffers read as Tensor | Module to a type checker
+        rows = obs.to(self.row_weights.dtype) @ self.row_weights  # type: ignore[arg-type,operator]
+        return rows.long() + self.group_starts  # type: ignore[operator]
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         first = self.convs[0]
@@ -326,7 +293,7 @@ class TrajectoryEncoder(nn.Module):
     def __init__(self, domain: DomainSpec, sizes: Sizes):
         super().__init__()
         if len(domain.obs_shape) == 3:
-            self.state = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
+            self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
                                           sizes.traj_state_mlp)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
@@ -352,7 +319,7 @@ class GPLPolicy(nn.Module):
         super().__init__()
         self.domain_name = domain.name
         self.variant = variant
-        sizes = SIZES[domain.name]
+        sizes = domain.model_sizes
         vocab = domain.vocabulary
         self.embedding = nn.Embedding(vocab.size, embedding_dim, padding_idx=vocab.pad_id)
         self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
@@ -361,7 +328,8 @@ class GPLPolicy(nn.Module):
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
                                   final_activation=sizes.pair_final_relu)
         if len(domain.obs_shape) == 3:
-            self.state = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels, sizes.state_mlp)
+            self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels,
+                                                     sizes.state_mlp)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         self.conditioning_dim = self.instruction.out_dim + pair_dim
@@ -426,4 +394,5 @@ def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
 
 
 def load_numpy_state(model: nn.Module, weights: dict[str, np.ndarray]) -> None:
+    """Load weights given as numpy arrays (as ``state_dict_to_numpy`` makes them) into ``model``."""
     model.load_state_dict({k: torch.tensor(np.asarray(v)) for k, v in weights.items()})

@@ -1,7 +1,7 @@
 """Collectors hand a round's work units to rollout workers and gather the shard records.
 
 ``SerialCollector`` runs one ``RolloutWorker`` in this process (``--serial``, tests, debugging);
-``learner.distributed.RayCollector`` runs the same worker class as Ray actors. Both return shard
+``workers.ray_pool.RayCollector`` runs the same worker class as Ray actors. Both return shard
 records only; the data itself is in the buffer.
 """
 
@@ -34,12 +34,14 @@ class UnitResult:
 
 
 def run_unit(worker: RolloutWorker, unit: WorkUnit) -> UnitResult:
+    """Collect ``unit`` with ``worker``; the shard record and the tasks that failed."""
     shard = worker.run_unit(unit)
     return UnitResult(shard, tuple((f.task_id, str(f)) for f in worker.failures), worker.worker_id, len(unit.task_ids))
 
 
 def make_worker(domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
                 worker_id: str, num_threads: int = 0) -> RolloutWorker:
+    """A rollout worker that writes its shards into the buffer at ``buffer_root``."""
     from storage import ShardWriter
 
     return RolloutWorker(get_domain(domain_name), settings, ShardWriter(buffer_root, run_id), worker_id, num_threads)

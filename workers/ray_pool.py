@@ -23,14 +23,14 @@ import logging
 import os
 import time
 from collections import deque
-from contextlib import contextmanager
 from collections.abc import Callable, Sequence
+from contextlib import contextmanager
 
 import ray
 from ray.exceptions import RayActorError, RayTaskError
 
 from gpl_dist.records import WorkUnit
-from learner.collectors import UnitResult, make_worker, run_unit
+from workers.pool import UnitResult, make_worker, run_unit
 from workers.rollout import RolloutSettings
 
 log = logging.getLogger(__name__)
@@ -136,7 +136,8 @@ class RayCollector:
         self._probes: dict = {}
 
     def _new_actor(self, i: int):
-        return RolloutActor.options(scheduling_strategy="SPREAD").remote(*self._actor_args, f"actor-{i}")
+        # ray.remote made the class an ActorClass, which type checkers do not see
+        return RolloutActor.options(scheduling_strategy="SPREAD").remote(*self._actor_args, f"actor-{i}")  # type: ignore[attr-defined]
 
     def _probe(self, i: int) -> None:
         """Hand actor ``i`` no unit until a cheap call shows it is alive (restarted) again."""

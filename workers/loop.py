@@ -1,0 +1,280 @@
+"""The rollout loop: a batch of tasks through their attempts, with a policy, an optional expert and
+a correction source. Collection, evaluation and interactive use all step envs through ``Rollout``.
+
+For each task (Algorithm 1's inner loops, Algorithm 2 at meta-test): attempt 0 is conditioned on
+the instruction alone (or on the full-information text); after each attempt that did not solve the
+task, the correction source gives a correction, and the next attempt is conditioned on every
+earlier (trajectory, correction) pair, up to ``num_corrections`` corrections. All tasks of the batch
+advance together, so each environment step costs one batched policy forward for the batch; an
+expert, when given, labels every visited state in-process. A task whose env, expert or correction
+source raises is dropped (``TaskFailure``) and the others go on.
+
+Everything is a function of the seed: reset seeds ``derive_seed(seed, task, k)``, one action
+sampling stream per batch named by its tasks (independent of which process runs it), correction
+choices ``derive_rng(seed, task, k, 0xC0)``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Union
+
+import numpy as np
+import torch
+
+from gpl_dist.models.gpl import Conditioning, GPLPolicy
+from gpl_dist.records import Attempt, Correction
+from gpl_dist.roles import CorrectionOracle, DomainSpec, Expert, trajectory_times
+from gpl_dist.seeding import derive_rng, derive_seed
+
+log = logging.getLogger(__name__)
+
+#: What gives corrections: an oracle, or any callable ``(env, rng) -> Correction`` (a person
+#: typing, a recorded list); a plain callable cannot give the full-information text.
+CorrectionSource = Union[CorrectionOracle, Callable[[Any, np.random.Generator], Correction]]
+
+
+class TaskFailure(RuntimeError):
+    """An env, expert or correction source raised for one task; carries the task id and stage."""
+
+    def __init__(self, task_id: int, stage: str, cause: BaseException):
+        super().__init__(f"task {task_id}: {stage} failed: {type(cause).__name__}: {cause}")
+        self.task_id = task_id
+        self.stage = stage
+
+
+def sample_actions(logits: torch.Tensor, rng: np.random.Generator, greedy: bool) -> np.ndarray:
+    """int64 ``(B,)`` actions: argmax, or one draw per row from softmax(logits) with ``rng``.
+
+    Sampling is Gumbel-max (argmax of logits plus Gumbel noise), which draws exactly from the
+    softmax without computing it: three numpy calls per step for the whole batch.
+    """
+    scores = logits.numpy().astype(np.float64)
+    if not greedy:
+        scores += rng.gumbel(size=scores.shape)
+    return scores.argmax(axis=1).astype(np.int64)
+
+
+@dataclass(frozen=True)
+class RolloutResult:
+    """What ``Rollout.run`` returns.
+
+    Attributes:
+        attempts: every finished attempt, in (task order, attempt index) order.
+        failures: tasks dropped because their env, expert or correction source raised.
+    """
+
+    attempts: tuple[Attempt, ...]
+    failures: tuple[TaskFailure, ...]
+
+
+@dataclass
+class _Batch:
+    """Per-task state of one ``run`` (index ``i`` is the task's position in ``task_ids``)."""
+
+    task_ids: tuple[int, ...]
+    envs: list[Any]
+    failed: np.ndarray
+    solved: np.ndarray
+    instructions: list[str]
+    # (trajectory (S, *O), correction ids (L,)) of each finished attempt of each task
+    histories: list[list[tuple[np.ndarray, np.ndarray]]]
+    attempts: list[list[Attempt]]
+    failures: list[TaskFailure] = field(default_factory=list)
+
+    def fail(self, i: int, stage: str, err: BaseException) -> None:
+        failure = TaskFailure(int(self.task_ids[i]), stage, err)
+        log.error("%s", failure)
+        self.failures.append(failure)
+        self.failed[i] = True
+
+
+@dataclass
+class _AttemptBuffers:
+    """One attempt of the ``m`` active tasks: observations, actions, labels (filled in place)."""
+
+    obs: np.ndarray  # (m, T, *O)
+    actions: np.ndarray  # int64 (m, T)
+    labels: np.ndarray  # int64 (m, T), -1 where unlabelled
+    probs: np.ndarray | None  # float32 (m, T, A), the expert's distributions (soft-label experts)
+
+
+class Rollout:
+    """Steps batches of tasks through their attempts (see the module docstring).
+
+    Args:
+        domain: the domain's spec.
+        policy: the GPL network (its weights may change between runs; it is only read).
+        corrections: an oracle or a callable ``(env, rng) -> Correction``.
+        expert: labels every visited state when given (collection); None at meta-test time.
+        greedy: act with the most likely action instead of sampling.
+        end_aligned: subsample earlier attempts ending at their last state
+            (``ModelConfig.trajectory_ends_at_last_state``).
+        full_information: condition on the oracle's full-information text instead of the instruction.
+    """
+
+    def __init__(self, domain: DomainSpec, policy: GPLPolicy, corrections: CorrectionSource,
+                 expert: Expert | None = None, *, greedy: bool = False, end_aligned: bool = False,
+                 full_information: bool = False):
+        self.domain = domain
+        self.policy = policy
+        self.corrections = corrections
+        self.expert = expert
+        self.greedy = greedy
+        self.full_information = full_information
+        self.traj_times = trajectory_times(domain.steps_per_attempt, domain.trajectory_stride, end_aligned)
+        if full_information and not hasattr(corrections, "full_information"):
+            raise TypeError("the full-information variant needs an oracle with full_information(env)")
+
+    def run(self, task_ids: Sequence[int], num_corrections: int, seed: int, *, round_index: int = 0,
+            split: str = "", policy_version: int = -1) -> RolloutResult:
+        """Every attempt of ``task_ids``: at most ``num_corrections + 1`` each (1 for a policy that
+        takes no corrections), stopping at the first that solves the task."""
+        task_ids = tuple(int(t) for t in task_ids)
+        batch = self._start(task_ids)
+        max_attempts = num_corrections + 1 if self.policy.uses_corrections else 1
+        action_rng = derive_rng(seed, round_index, *task_ids[:1], len(task_ids), 0xAC7)
+        for k in range(max_attempts):
+            active = np.flatnonzero(~batch.solved & ~batch.failed)
+            if active.size == 0:
+                break
+            reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
+            buffers = self._reset(batch, active, k, reset_seeds)
+            infos = self._step_attempt(batch, active, buffers, action_rng, k)
+            self._finish_attempt(batch, active, buffers, infos, k, reset_seeds,
+                                 seed=seed, split=split, last=k == max_attempts - 1, policy_version=policy_version)
+        return RolloutResult(tuple(a for per_task in batch.attempts for a in per_task), tuple(batch.failures))
+
+    # -- steps of run ----------------------------------------------------------------------------
+
+    def _start(self, task_ids: tuple[int, ...]) -> _Batch:
+        n = len(task_ids)
+        batch = _Batch(task_ids, [None] * n, np.zeros(n, bool), np.zeros(n, bool), [""] * n,
+                       [[] for _ in range(n)], [[] for _ in range(n)])
+        for i, t in enumerate(task_ids):
+            try:
+                batch.envs[i] = self.domain.make_env(t)
+            except Exception as err:  # noqa: BLE001 - one broken task must not end the batch
+                batch.fail(i, "env construction", err)
+        return batch
+
+    def _reset(self, batch: _Batch, active: np.ndarray, k: int, reset_seeds: list[int]) -> _AttemptBuffers:
+        d = self.domain
+        m, steps = active.size, d.steps_per_attempt
+        soft = self.expert is not None and self.expert.soft_labels
+        buffers = _AttemptBuffers(obs=np.zeros((m, steps) + d.obs_shape, dtype=d.obs_dtype),
+                                  actions=np.zeros((m, steps), dtype=np.int64),
+                                  labels=np.full((m, steps), -1, dtype=np.int64),
+                                  probs=np.zeros((m, steps, d.num_actions), dtype=np.float32) if soft else None)
+        for j, i in enumerate(active):
+            try:
+                buffers.obs[j, 0] = batch.envs[i].reset(seed=reset_seeds[j])[0]
+                if k == 0:
+                    batch.instructions[i] = (self.corrections.full_information(batch.envs[i])  # type: ignore[union-attr]
+                                             if self.full_information else batch.envs[i].instruction)
+            except Exception as err:  # noqa: BLE001
+                batch.fail(i, "reset", err)
+        return buffers
+
+    def _step_attempt(self, batch: _Batch, active: np.ndarray, buffers: _AttemptBuffers,
+                      action_rng: np.random.Generator, k: int) -> list[dict]:
+        """Step the active tasks' envs in lockstep for one attempt; fills ``buffers`` in place.
+
+        The hot loop: one batched policy forward per step, then per env one expert label and one
+        env step. Per-env work stays in plain Python lists (numpy scalar indexing costs more than
+        the env step's own bookkeeping); each step's observations are stacked once into the
+        attempt's buffer, which the next forward reads as a view.
+        """
+        with torch.inference_mode():
+            z = self.policy.encode_conditioning(self._conditioning([batch.instructions[i] for i in active],
+                                                                   [batch.histories[i] for i in active], k))
+        m, steps = active.size, self.domain.steps_per_attempt
+        envs = [batch.envs[i] for i in active]
+        alive = [not batch.failed[i] for i in active]
+        expert, soft = self.expert, buffers.probs is not None
+        last_obs = list(buffers.obs[:, 0])  # the reset observations
+        infos: list[dict] = [{}] * m
+        labels = [-1] * m
+        zero_probs = np.zeros(self.domain.num_actions, dtype=np.float32)
+        probs = [zero_probs] * m
+        for t in range(steps):
+            with torch.inference_mode():
+                logits = self.policy.action_logits(torch.from_numpy(buffers.obs[:, t]), z)
+            actions = sample_actions(logits, action_rng, self.greedy)
+            buffers.actions[:, t] = actions
+            for j, a in enumerate(actions.tolist()):
+                if not alive[j]:
+                    continue
+                env = envs[j]
+                try:
+                    if soft:
+                        labels[j], probs[j] = expert.label(env)  # type: ignore[union-attr]
+                    elif expert is not None:
+                        labels[j] = expert.act(env)
+                    last_obs[j], _, _, _, infos[j] = env.step(a)
+                except Exception as err:  # noqa: BLE001 - one broken task must not end the batch
+                    alive[j] = False
+                    labels[j], probs[j] = -1, zero_probs
+                    batch.fail(int(active[j]), "step/expert", err)
+            if expert is not None:
+                buffers.labels[:, t] = labels
+                if soft:
+                    np.stack(probs, out=buffers.probs[:, t])  # type: ignore[index]
+            if t + 1 < steps:
+                np.stack(last_obs, out=buffers.obs[:, t + 1])
+        return infos
+
+    def _finish_attempt(self, batch: _Batch, active: np.ndarray, buffers: _AttemptBuffers, infos: list[dict],
+                        k: int, reset_seeds: list[int], *, seed: int, split: str, last: bool,
+                        policy_version: int) -> None:
+        """Record each active task's attempt, with the correction that follows it unless it
+        solved the task or was the last."""
+        vocab = self.domain.vocabulary
+        for j, i in enumerate(active):
+            if batch.failed[i]:
+                continue
+            info, task_id = infos[j], batch.task_ids[i]
+            success = bool(info.get("success", False))
+            text, kind = "", ""
+            if not success and not last:
+                try:
+                    corr = self._correct(batch.envs[i], derive_rng(seed, task_id, k, 0xC0))
+                except Exception as err:  # noqa: BLE001
+                    batch.fail(int(i), "correction", err)
+                    continue
+                text, kind = corr.text, corr.kind
+            corr_ids = vocab.encode(text) if text else np.zeros(vocab.max_tokens, dtype=np.int64)
+            batch.attempts[i].append(Attempt(
+                task_id=task_id, split=split, attempt_index=k,
+                instruction=batch.instructions[i], instruction_ids=vocab.encode(batch.instructions[i]),
+                observations=buffers.obs[j], actions=buffers.actions[j], expert_actions=buffers.labels[j],
+                completion=float(info.get("completion", 0.0)), success=success,
+                correction=text, correction_kind=kind, correction_ids=corr_ids,
+                seed=reset_seeds[j], policy_version=policy_version,
+                expert_probs=None if buffers.probs is None else buffers.probs[j],
+            ))
+            batch.histories[i].append((buffers.obs[j, self.traj_times], corr_ids))
+            batch.solved[i] = success
+
+    def _correct(self, env: Any, rng: np.random.Generator) -> Correction:
+        source = self.corrections
+        return source.correct(env, rng) if hasattr(source, "correct") else source(env, rng)  # type: ignore[operator,union-attr]
+
+    def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]],
+                      k: int) -> Conditioning:
+        vocab, d = self.domain.vocabulary, self.domain
+        m = len(instructions)
+        pairs = [pair for hist in histories for pair in hist[:k]]
+        traj = np.zeros((len(pairs), d.trajectory_samples) + d.obs_shape, dtype=d.obs_dtype)
+        corr = np.zeros((len(pairs), vocab.max_tokens), dtype=np.int64)
+        for u, (tr, c) in enumerate(pairs):
+            traj[u, : tr.shape[0]] = tr
+            corr[u] = c
+        return Conditioning(
+            instruction_ids=torch.from_numpy(vocab.encode_batch(instructions)),
+            trajectories=torch.from_numpy(traj),
+            correction_ids=torch.from_numpy(corr),
+            slots=torch.arange(m * k, dtype=torch.long).reshape(m, k),
+        )
