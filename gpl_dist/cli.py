@@ -90,9 +90,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
                                 max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
     import json
-    domain = json.loads(path.read_text())["domain"]
+    report = json.loads(path.read_text())
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
-    print(format_table(domain, result))
+    print(format_table(report["domain"], result, with_paper=report["reduced_scale"] is None))
+    if report["reduced_scale"]:
+        print(f"note: {report['reduced_scale']}")
     print(f"wrote {path} and {path.with_suffix('.png')}")
     return 0
 

@@ -30,12 +30,10 @@ while pushing; the block stops within ~0.02 once the gripper stops pushing):
    recomputed for a new gripper position, only when a block or the goal changes cell (on a
    learner's states, where the gripper bumps blocks, the dense BFS was rerun nearly every step).
 
-Figures (``benchmarks/relocation_expert.py``, all 1000 tasks): mean completion 0.952 from the
-start, 0.917 from perturbed states; labels/s on one core: ~12-14k on the expert's own states, ~34k
-on a uniformly random policy's, ~23k on a sticky random policy's (a DAgger worker's early
-rounds). Residual losses: tight passes next to fixed blocks (the U snags), long tasks that run
-out of time (pushing is 0.65 units/s), and a few approach dead-locks when the standoff lies on
-the edge of the dilated obstacles.
+``benchmarks/relocation_expert.py`` measures its completion over all 1000 tasks, from the start
+and from perturbed states, and its labels per second. Residual losses: tight passes next to fixed
+blocks (the U snags), long tasks that run out of time (pushing is 0.65 units/s), and a few
+approach dead-locks when the standoff lies on the edge of the dilated obstacles.
 
 Labels: ``act(env)`` is the controller's action; ``label(env)`` adds the distribution the learner
 is trained toward (KL, as the authors trained toward their PPO experts' action distributions). The

@@ -1,10 +1,9 @@
 """Learned expert for robotic object relocation: an MLP policy given the exact target, as the authors'.
 
 Why: the paper's experts were policies learned per task with PPO (small MLPs), whose action
-distributions are smooth functions of the state, and which its full-information oracle imitated
-to 0.96. The scripted planner (``gpl_dist.experts.relocation``) is as good a policy (0.952), but its
-bang-bang, grid-planned choices are hard to imitate: with the exact target given, an MLP reached
-only 0.878 after 14 DAgger rounds, and GPL 0.788 after 5 corrections (``docs/results.md``).
+distributions are smooth functions of the state. The scripted planner (``gpl_dist.experts.relocation``)
+is about as good a policy, but its bang-bang, grid-planned choices are hard to imitate, even with
+the exact target given (``docs/history.md`` has the figures).
 
 What: one network for all tasks, ``pi(a | obs, target, block)``: the 28-d observation, the task's
 exact target (x, y) and the goal block's one-hot (the authors' full-information inputs), through
@@ -18,9 +17,8 @@ the commands):
    training tasks, starting from step 1's weights (clip 0.1, GAE, a critic learned from scratch
    with the policy frozen for its first iterations, an early stop on the policy's KL).
 
-Figures (600 PPO iterations): mean completion 0.969 on the first 100 test tasks (sampled actions;
-0.878 before PPO, 0.956 after 280 iterations) and 0.962 over all 1000 tasks from the start with
-its argmax actions (the scripted expert: 0.952).
+The packaged weights are those after 600 PPO iterations; ``benchmarks/relocation_expert.py
+--expert learned`` measures their completion (``docs/history.md`` has the figures).
 
 Labels: ``label(env)`` is ``(argmax action, softmax distribution)``, float32 ``(4,)``; the
 learner fits the distribution, as the authors fitted their PPO experts'. Stateless and
