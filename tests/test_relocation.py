@@ -271,7 +271,7 @@ def test_expert_from_start_and_perturbed():
                 _, _, term, trunc, info = env.step(a)
             assert trunc
             (perturbed if pert else start).append(info["completion"])
-    # Full-task figures: benchmarks/relocation_expert.py (see the expert module docstring).
+    # Full-task figures: research/relocation_expert.py (see the expert module docstring).
     assert np.mean(start) >= START_FLOOR, start
     assert np.mean(perturbed) >= PERTURBED_FLOOR, perturbed
     assert np.median(start) > 0.95
@@ -302,7 +302,7 @@ def test_expert_on_random_policy_states():
     """A DAgger worker's labels: every state of a random policy gets an action, cheaply.
 
     Gripper fields are cached per (task, movable-block cells, goal cell) and grown lazily, so they
-    are not recomputed when the gripper wanders (``benchmarks/relocation_expert.py`` measures the
+    are not recomputed when the gripper wanders (``research/relocation_expert.py`` measures the
     rate: well above 10k labels/s on such states)."""
     import time
 
@@ -342,7 +342,7 @@ def test_render():
 
 
 def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
-    """``benchmarks/relocation_imitation.py`` end to end on 2 tasks: the expert's own figures, then
+    """``research/relocation_imitation.py`` end to end on 2 tasks: the expert's own figures, then
     one line per DAgger round with the on-policy KL from round 1 on, and the aggregate growing;
     the saved policy loads with ``weights_only=True``."""
     import re
@@ -350,7 +350,7 @@ def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
     import sys
     from pathlib import Path
 
-    script = Path(__file__).resolve().parents[1] / "benchmarks" / "relocation_imitation.py"
+    script = Path(__file__).resolve().parents[1] / "research" / "relocation_imitation.py"
     saved = tmp_path / "policy.pt"
     out = subprocess.run([sys.executable, str(script), "--rounds", "2", "--tasks", "2", "--test-tasks", "2",
                           "--epochs", "1", "--save-policy", str(saved)],
@@ -366,12 +366,12 @@ def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
 
 
 def test_ppo_expert_benchmark_returns_and_one_task():
-    """``benchmarks/relocation_ppo_expert.py``: Monte-Carlo returns are exact, and two PPO iterations
+    """``research/relocation_ppo_expert.py``: Monte-Carlo returns are exact, and two PPO iterations
     on one task run with the authors' settings and report the task's completion and timing."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "relocation_ppo_expert.py"
+    path = Path(__file__).resolve().parents[1] / "research" / "relocation_ppo_expert.py"
     spec = importlib.util.spec_from_file_location("relocation_ppo_expert", path)
     ppo = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ppo)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -26,11 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _module(path: Path):
     spec = importlib.util.spec_from_file_location(path.stem, path)
     mod = importlib.util.module_from_spec(spec)
-    sys.path.insert(0, str(ROOT / "benchmarks"))
-    try:
-        spec.loader.exec_module(mod)
-    finally:
-        sys.path.remove(str(ROOT / "benchmarks"))
+    spec.loader.exec_module(mod)
     return mod
 
 
@@ -49,8 +44,8 @@ def test_packaged_weights_load_without_pickle_and_give_distributions():
 
 
 def test_export_round_trip_matches_the_torch_policy(tmp_path):
-    """``scripts/train_relocation_expert.export`` writes what ``action_probs`` computes like torch."""
-    script = _module(ROOT / "scripts" / "train_relocation_expert.py")
+    """``relocation_training.export`` writes what ``action_probs`` computes like torch."""
+    from gpl_dist.experts import relocation_training as script
     torch.manual_seed(0)
     policy = script.build_policy(33, 256)
     with torch.no_grad():
@@ -119,8 +114,8 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
     torch.manual_seed(1)
     init, out = tmp_path / "init.pt", tmp_path / "expert.npz"
     torch.save(script.build_policy(33, 256).state_dict(), init)
-    script.main(["--init", str(init), "--out", str(out), "--iterations", "2", "--envs", "4", "--warmup", "1",
-                 "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256", "--threads", "1"])
+    script.main(["--threads", "1", "ppo", "--init", str(init), "--out", str(out), "--iterations", "2", "--envs", "4",
+                 "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
     assert lines[1].startswith("iteration 0:") and "KL 0.0000" in lines[1]  # critic warm-up: no policy step

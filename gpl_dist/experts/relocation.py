@@ -30,7 +30,7 @@ while pushing; the block stops within ~0.02 once the gripper stops pushing):
    recomputed for a new gripper position, only when a block or the goal changes cell (on a
    learner's states, where the gripper bumps blocks, the dense BFS was rerun nearly every step).
 
-``benchmarks/relocation_expert.py`` measures its completion over all 1000 tasks, from the start
+``research/relocation_expert.py`` measures its completion over all 1000 tasks, from the start
 and from perturbed states, and its labels per second. Residual losses: tight passes next to fixed
 blocks (the U snags), long tasks that run out of time (pushing is 0.65 units/s), and a few
 approach dead-locks when the standoff lies on the edge of the dilated obstacles.

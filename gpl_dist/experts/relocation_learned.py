@@ -8,16 +8,15 @@ the exact target given (``docs/history.md`` has the figures).
 What: one network for all tasks, ``pi(a | obs, target, block)``: the 28-d observation, the task's
 exact target (x, y) and the goal block's one-hot (the authors' full-information inputs), through
 an input normalisation and an MLP 256 x 3 (ReLU) to 4 action logits. A family of per-task
-experts in one function. Trained in two steps (``scripts/train_relocation_expert.py`` documents
-the commands):
+experts in one function. Trained in two steps (``gpl_dist.experts.relocation_training``;
+``scripts/train_relocation_expert.py`` runs them):
 
-1. DAgger on the scripted expert's soft labels, 14 rounds over 250 training tasks
-   (``benchmarks/relocation_imitation.py --rounds 14 --save-policy ...``);
+1. DAgger on the scripted expert's soft labels, 14 rounds over 250 training tasks;
 2. PPO with the paper's dense reward ``-(|arm - block| + 5 |block - target|)`` over all 750
    training tasks, starting from step 1's weights (clip 0.1, GAE, a critic learned from scratch
    with the policy frozen for its first iterations, an early stop on the policy's KL).
 
-The packaged weights are those after 600 PPO iterations; ``benchmarks/relocation_expert.py
+The packaged weights are those after 600 PPO iterations; ``research/relocation_expert.py
 --expert learned`` measures their completion (``docs/history.md`` has the figures).
 
 Labels: ``label(env)`` is ``(argmax action, softmax distribution)``, float32 ``(4,)``; the

@@ -10,7 +10,7 @@ networks, loss = policy + value MSE - 0.001 entropy, the dense reward
 expert instead; this benchmark measures what training the authors' kind would take on this
 machine, per task and extrapolated to the 1000 tasks:
 
-    .venv/bin/python benchmarks/relocation_ppo_expert.py [--tasks 2] [--max-iterations 500]
+    .venv/bin/python research/relocation_ppo_expert.py [--tasks 2] [--max-iterations 500]
 
 Printed per task: iterations run, whether and when all 20 episodes of an iteration finished, the
 last iteration's mean completion, and seconds (one core). Deterministic for a given ``--seed``.
@@ -25,7 +25,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from gpl_dist.envs.relocation import EPISODE_STEPS, NUM_TASKS, SUCCESS_RADIUS, make_env
+from gpl_dist.envs.relocation import NUM_TASKS, SUCCESS_RADIUS, make_env
+from gpl_dist.experts.relocation_training import sample_episodes
 from gpl_dist.splits import split_tasks
 
 NUM_COPIES = 20
@@ -51,35 +52,6 @@ def discounted_returns(rewards: np.ndarray) -> np.ndarray:
         running = rewards[t] + GAMMA * running
         out[t] = running
     return out
-
-
-def sample_episodes(policy: nn.Module, envs: list, reset_seeds, gen: torch.Generator, extra: np.ndarray | None = None):
-    """One episode of ``policy`` (sampled actions) on every env, in lockstep.
-
-    Returns float32 inputs ``(T + 1, N, D)``: the observation, then ``extra`` ``(N, E)`` when given
-    (row T is the state after the last step); int64 actions, float32 their log-probabilities and
-    float32 rewards, each ``(T, N)``."""
-    def inputs(obs: np.ndarray) -> np.ndarray:
-        return obs if extra is None else np.concatenate([obs, extra], 1)
-
-    obs = np.stack([e.reset(seed=int(s))[0] for e, s in zip(envs, reset_seeds)]).astype(np.float32)
-    T, N = EPISODE_STEPS, len(envs)
-    x_buf = np.zeros((T + 1, N, inputs(obs).shape[1]), np.float32)
-    act_buf = np.zeros((T, N), np.int64)
-    logp_buf = np.zeros((T, N), np.float32)
-    rew_buf = np.zeros((T, N), np.float32)
-    for t in range(T):
-        x_buf[t] = inputs(obs)
-        with torch.no_grad():
-            logp = torch.log_softmax(policy(torch.from_numpy(x_buf[t])), 1)
-        act = torch.multinomial(logp.exp(), 1, generator=gen).squeeze(1)
-        act_buf[t] = act.numpy()
-        logp_buf[t] = logp.gather(1, act[:, None]).squeeze(1).numpy()
-        steps = [e.step(int(u)) for e, u in zip(envs, act_buf[t])]
-        obs = np.stack([r[0] for r in steps]).astype(np.float32)
-        rew_buf[t] = [r[1] for r in steps]
-    x_buf[T] = inputs(obs)
-    return x_buf, act_buf, logp_buf, rew_buf
 
 
 def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0) -> dict:

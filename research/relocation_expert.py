@@ -5,7 +5,7 @@ also measured on the states a DAgger worker labels early on: those visited by a 
 policy, and by a "sticky" random policy (a random action repeated 10-30 steps, which pushes blocks
 around more like a partly trained policy); the expert labels every state, the policy steps.
 
-    .venv/bin/python benchmarks/relocation_expert.py [--tasks 1000] [--stride 1] [--policy-tasks 50] [--expert learned]
+    .venv/bin/python research/relocation_expert.py [--tasks 1000] [--stride 1] [--policy-tasks 50] [--expert learned]
 """
 
 from __future__ import annotations

@@ -13,9 +13,9 @@ run's ``seed``) unless ``--from-checkpoint`` continues one, with its Adam moment
 evaluated with the run's ``eval`` settings. ``--out-dir`` saves the resolved config and a checkpoint
 there, so ``gpl-dist eval --run-dir OUT`` can look again.
 
-    .venv/bin/python benchmarks/retrain_on_buffer.py --run-dir runs/rl-v6
-    .venv/bin/python benchmarks/retrain_on_buffer.py --run-dir runs/rl-v6 --set model.policy_batchnorm=true
-    .venv/bin/python benchmarks/retrain_on_buffer.py --run-dir runs/rl-v6 \\
+    .venv/bin/python research/retrain_on_buffer.py --run-dir runs/rl-v6
+    .venv/bin/python research/retrain_on_buffer.py --run-dir runs/rl-v6 --set model.policy_batchnorm=true
+    .venv/bin/python research/retrain_on_buffer.py --run-dir runs/rl-v6 \\
         --from-checkpoint runs/rl-v6/checkpoints/round-000011.pt --set training.learning_rate=1e-4
 """
 
