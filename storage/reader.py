@@ -9,7 +9,7 @@ for as many epochs as it likes without touching the disk again.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -217,24 +217,56 @@ class BufferReader:
         by ``gpl_dist.roles.trajectory_times``, as the rollout worker did when it acted on them.
 
         Rounds are kept newest first while they fit whole; of the first round that does not fit, a
-        random subset of whole attempts (seeded by the round index) fills the rest.
+        random subset of whole attempts (seeded by the round index) fills the rest. Three steps:
+        the window (``_window``), the attempt rows it needs (``_ViewRows``: the kept attempts and
+        every earlier attempt they are conditioned on), and the per-shard gather (``_Gather``).
         """
         if trajectory_stride < 1:
             raise ValueError("trajectory_stride must be at least 1")
+        window = self._window(int(capacity_tuples))
+        stride, end_aligned = int(trajectory_stride), bool(trajectory_end_aligned)
+        if not window.tables:
+            return _empty_view(window.obs_shape, window.obs_dtype, stride, end_aligned, ())
+        rows = _ViewRows.of(window)
+        gathered = _Gather(self.location, window, rows, stride, end_aligned).run()
+        att, sel = rows.att, rows.sel
+        return TrainingView(
+            observations=gathered.observations,
+            expert_actions=gathered.expert_actions,
+            expert_probs=gathered.expert_probs,
+            actions=gathered.actions,
+            timesteps=gathered.timesteps,
+            attempt_rows=gathered.attempt_rows,
+            attempt_keys=rows.keys[sel].astype(np.int64),
+            round_index=att.column("round").to_numpy()[sel].astype(np.int64),
+            unit_index=att.column("unit").to_numpy()[sel].astype(np.int64),
+            task_id=att.column("task_id").to_numpy()[sel].astype(np.int64),
+            attempt_index=rows.attempt_index,
+            lengths=rows.lengths,
+            instruction_ids=_fixed_lists(att.column("instruction_ids").take(pa.array(sel)), "instruction_ids"),
+            correction_ids=_fixed_lists(att.column("correction_ids").take(pa.array(sel)), "correction_ids"),
+            completion=att.column("completion").to_numpy()[sel].astype(np.float32),
+            success=att.column("success").to_numpy(zero_copy_only=False)[sel].astype(bool),
+            in_window=rows.in_window[sel],
+            context_rows=rows.context_rows,
+            trajectories=gathered.trajectories,
+            trajectory_lengths=gathered.trajectory_lengths,
+            trajectory_stride=stride,
+            trajectory_end_aligned=end_aligned,
+            rounds=tuple(m.round_index for m in window.manifests),
+        )
+
+    def _window(self, capacity: int) -> "_Window":
+        """The committed rounds in the FIFO window, oldest first, and which attempts of each are kept."""
         loc = self.location
-        rounds = self.committed_rounds()
-        obs_shape: tuple[int, ...] = ()
-        obs_dtype: np.dtype = np.dtype(np.float32)
-        manifests: list[RoundManifest] = []
-        tables: list[pa.Table] = []
-        remaining = int(capacity_tuples)
-        keep_masks: list[np.ndarray] = []  # per loaded round: which of its attempts are in the window
-        for r in reversed(rounds):
+        window = _Window()
+        remaining = capacity
+        for r in reversed(self.committed_rounds()):
             if remaining <= 0:
                 break
             m = self.manifest(r)
-            if m.obs_shape is not None and not obs_shape:
-                obs_shape, obs_dtype = tuple(m.obs_shape), np.dtype(m.obs_dtype)
+            if m.obs_shape is not None and not window.obs_shape:
+                window.obs_shape, window.obs_dtype = tuple(m.obs_shape), np.dtype(m.obs_dtype)
             shards = sorted(m.shards, key=lambda s: s.unit_index)
             parts = [read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS) for s in shards]
             t = pa.concat_tables(parts) if parts else None
@@ -251,44 +283,70 @@ class BufferReader:
                 keep[:] = False
                 keep[order[:n_fit]] = True
             remaining -= int(lengths[keep].sum())
-            manifests.append(m)
-            tables.append(t)
-            keep_masks.append(keep)
+            window.manifests.insert(0, m)
+            window.tables.insert(0, t)
+            window.keep_masks.insert(0, keep)
             if not keep.all():
                 break  # FIFO: part of this round did not fit, so nothing older is kept
-        manifests.reverse()
-        tables.reverse()
-        keep_masks.reverse()
-        for m in manifests:
-            if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (obs_shape, obs_dtype):
+        for m in window.manifests:
+            if m.obs_shape is not None and (tuple(m.obs_shape), np.dtype(m.obs_dtype)) != (window.obs_shape, window.obs_dtype):
                 raise BufferIntegrityError(f"round {m.round_index}: observations {m.obs_shape} {m.obs_dtype} "
-                                           f"differ from {obs_shape} {obs_dtype}")
-        if not tables:
-            return _empty_view(obs_shape, obs_dtype, trajectory_stride, trajectory_end_aligned, ())
+                                           f"differ from {window.obs_shape} {window.obs_dtype}")
+        return window
 
-        att = pa.concat_tables(tables)
+
+@dataclass
+class _Window:
+    """The rounds of the FIFO window, oldest first: manifests, attempts tables, kept-attempt masks."""
+
+    manifests: list[RoundManifest] = field(default_factory=list)
+    tables: list[pa.Table] = field(default_factory=list)
+    keep_masks: list[np.ndarray] = field(default_factory=list)
+    obs_shape: tuple[int, ...] = ()
+    obs_dtype: np.dtype = field(default_factory=lambda: np.dtype(np.float32))
+
+
+@dataclass(frozen=True)
+class _ViewRows:
+    """Which rows of the window's attempts table (``att``) become view rows.
+
+    ``keys``, ``in_window`` and ``needed`` are per row of ``att``; ``sel`` lists the needed rows
+    (the kept attempts and every attempt one of them is conditioned on), ``new_row`` maps a row
+    of ``att`` to its view row (-1 when not needed); ``lengths``, ``attempt_index`` and
+    ``context_rows`` are per view row.
+    """
+
+    att: pa.Table
+    keys: np.ndarray
+    in_window: np.ndarray
+    needed: np.ndarray
+    sel: np.ndarray
+    new_row: np.ndarray
+    lengths: np.ndarray
+    attempt_index: np.ndarray
+    context_rows: np.ndarray
+
+    @classmethod
+    def of(cls, window: _Window) -> "_ViewRows":
+        att = pa.concat_tables(window.tables)
         keys = att.column("attempt_key").to_numpy()
         if not (np.diff(keys) > 0).all():
             raise BufferIntegrityError("attempt keys of the committed rounds are not strictly increasing")
-        in_window = np.concatenate(keep_masks)
+        in_window = np.concatenate(window.keep_masks)
         ctx_col = att.column("context_keys").combine_chunks()
         ctx_off = ctx_col.offsets.to_numpy()
         ctx_val = ctx_col.values.to_numpy()[ctx_off[0] : ctx_off[-1]]
         ctx_off = ctx_off - ctx_off[0]
-        ctx_len = np.diff(ctx_off)
         # attempts referenced by the context of a kept attempt
-        win_ctx = ctx_val[np.repeat(in_window, ctx_len)]
+        win_ctx = ctx_val[np.repeat(in_window, np.diff(ctx_off))]
         ref_rows = np.searchsorted(keys, win_ctx)
         if len(win_ctx) and not ((ref_rows < len(keys)).all() and np.array_equal(keys[ref_rows], win_ctx)):
             raise BufferIntegrityError("an attempt's context_keys name an attempt missing from its round")
         needed = in_window.copy()
         needed[ref_rows] = True
-        sel = np.flatnonzero(needed)  # rows of `att` that become view rows
+        sel = np.flatnonzero(needed)
         new_row = np.full(len(keys), -1, np.int64)
         new_row[sel] = np.arange(len(sel))
-
-        a_keys = keys[sel]
-        lengths = att.column("length").to_numpy().astype(np.int64)[sel]
         attempt_index = att.column("attempt_index").to_numpy().astype(np.int64)[sel]
         k_max = max(1, int(attempt_index.max()) if len(sel) else 1)
         context_rows = np.full((len(sel), k_max), -1, np.int64)
@@ -296,109 +354,123 @@ class BufferReader:
             c = ctx_val[ctx_off[i] : ctx_off[i + 1]]
             if len(c):
                 context_rows[j, : len(c)] = new_row[np.searchsorted(keys, c)]
-        a_in_window = in_window[sel]
+        return cls(att=att, keys=keys, in_window=in_window, needed=needed, sel=sel, new_row=new_row,
+                   lengths=att.column("length").to_numpy().astype(np.int64)[sel], attempt_index=attempt_index,
+                   context_rows=context_rows)
 
-        # per tuple
+
+@dataclass(frozen=True)
+class _Gathered:
+    """The per-tuple arrays and the trajectories of a view (see ``TrainingView``)."""
+
+    observations: np.ndarray
+    expert_actions: np.ndarray
+    expert_probs: np.ndarray | None
+    actions: np.ndarray
+    timesteps: np.ndarray
+    attempt_rows: np.ndarray
+    trajectories: np.ndarray
+    trajectory_lengths: np.ndarray
+
+
+class _Gather:
+    """Reads each needed shard once: the kept attempts' observations and labels, and the
+    trajectory samples of every view row (from the observations just read, or, for attempts
+    needed only as context, straight from the shard's zarr group)."""
+
+    def __init__(self, loc: Location, window: _Window, rows: _ViewRows, stride: int, end_aligned: bool):
+        self.loc, self.window, self.rows = loc, window, rows
+        lengths, sel = rows.lengths, rows.sel
+        a_in_window = rows.in_window[sel]
+        obs_shape, obs_dtype = window.obs_shape, window.obs_dtype
         n = int(lengths[a_in_window].sum())
-        observations = np.empty((n, *obs_shape), obs_dtype)
-        expert_actions = np.empty(n, np.int64)
-        actions = np.empty(n, np.int64)
-        attempt_rows = np.repeat(np.flatnonzero(a_in_window).astype(np.int64), lengths[a_in_window])
-        tuple_start = np.full(len(sel), -1, np.int64)
-        tuple_start[a_in_window] = np.concatenate([[0], np.cumsum(lengths[a_in_window])[:-1]]).astype(np.int64)
-        timesteps = np.arange(n, dtype=np.int64) - np.repeat(tuple_start[a_in_window], lengths[a_in_window])
-
-        stride, end_aligned = int(trajectory_stride), bool(trajectory_end_aligned)
+        self.observations = np.empty((n, *obs_shape), obs_dtype)
+        self.expert_actions = np.empty(n, np.int64)
+        self.actions = np.empty(n, np.int64)
+        self.attempt_rows = np.repeat(np.flatnonzero(a_in_window).astype(np.int64), lengths[a_in_window])
+        self.tuple_start = np.full(len(sel), -1, np.int64)
+        self.tuple_start[a_in_window] = np.concatenate([[0], np.cumsum(lengths[a_in_window])[:-1]]).astype(np.int64)
+        self.timesteps = np.arange(n, dtype=np.int64) - np.repeat(self.tuple_start[a_in_window], lengths[a_in_window])
         # attempts share a handful of lengths: one index array per length
         unique_lengths, length_index = np.unique(lengths, return_inverse=True)
-        times_of = {int(n): trajectory_times(int(n), stride, end_aligned) for n in unique_lengths}
-        times = lambda length: times_of[int(length)]  # noqa: E731
-        t_len = np.array([len(times_of[int(n)]) for n in unique_lengths], dtype=np.int64)[length_index.reshape(-1)]
-        s_max = max(1, int(t_len.max()) if len(t_len) else 1)
-        trajectories = np.zeros((len(sel), s_max, *obs_shape), obs_dtype)
+        self.times_of = {int(k): trajectory_times(int(k), stride, end_aligned) for k in unique_lengths}
+        self.t_len = np.array([len(self.times_of[int(k)]) for k in unique_lengths],
+                              dtype=np.int64)[length_index.reshape(-1)]
+        s_max = max(1, int(self.t_len.max()) if len(self.t_len) else 1)
+        self.trajectories = np.zeros((len(sel), s_max, *obs_shape), obs_dtype)
+        self.obs_start = rows.att.column("obs_start").to_numpy().astype(np.int64)
+        self.units = rows.att.column("unit").to_numpy()
+        self.pos = 0  # next tuple row
+        self.probs_chunks: list[tuple[int, np.ndarray | None]] = []
 
-        obs_start_all = att.column("obs_start").to_numpy().astype(np.int64)
-        units_all = att.column("unit").to_numpy()
-        rounds_all = att.column("round").to_numpy()
-        pos = 0  # next tuple row
+    def run(self) -> _Gathered:
         off = 0
-        probs_chunks: list[tuple[int, np.ndarray | None]] = []
-        for m, t in zip(manifests, tables):
+        needed = self.rows.needed
+        for m, t in zip(self.window.manifests, self.window.tables):
             shard_of_unit = {s.unit_index: s for s in m.shards}
             rows = np.arange(off, off + t.num_rows)
-            for u in np.unique(units_all[rows]):
-                shard_rows = rows[units_all[rows] == u]
-                need = shard_rows[needed[shard_rows]]
-                if len(need) == 0:
-                    continue
-                shard = shard_of_unit[int(u)]
-                z = open_shard_obs(loc, shard)
-                win = shard_rows[in_window[shard_rows]]
-                lo = hi = 0
-                if len(win):
-                    lo = int(obs_start_all[win[0]])
-                    hi = int(obs_start_all[win[-1]] + lengths[new_row[win[-1]]])
-                    # rows of the kept attempts; one contiguous run unless the window cut a round
-                    take = np.concatenate([obs_start_all[i] + np.arange(lengths[new_row[i]]) for i in win]) - lo
-                    m_rows = len(take)
-                    contiguous = m_rows == hi - lo
-                    block = np.asarray(z[lo:hi])
-                    observations[pos : pos + m_rows] = block if contiguous else block[take]
-                    tup = read_shard_table(loc, shard, "tuples", ["attempt_key", "expert_action", "action"],
-                                           optional=["expert_probs"]).slice(lo, hi - lo)
-                    if not contiguous:
-                        tup = tup.take(pa.array(take))
-                    if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(keys[win], lengths[new_row[win]])):
-                        tuples_path = shard.files_of("tuples")[0].path
-                        raise BufferIntegrityError(f"tuples of {tuples_path} disagree with its attempts table")
-                    expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
-                    actions[pos : pos + m_rows] = tup.column("action").to_numpy()
-                    probs = tup.column("expert_probs") if "expert_probs" in tup.column_names else None
-                    probs_chunks.append((pos, _probs_rows(probs)))
-                    for i in win:
-                        j = new_row[i]
-                        trajectories[j, : t_len[j]] = observations[tuple_start[j] + times(lengths[j])]
-                    pos += m_rows
-                ctx_only = need[~in_window[need]]
-                if len(ctx_only):
-                    js = new_row[ctx_only]
-                    gather = np.concatenate([obs_start_all[i] + times(lengths[j]) for i, j in zip(ctx_only, js)])
-                    got = np.asarray(z.oindex[gather]) if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
-                    g = 0
-                    for j in js:
-                        trajectories[j, : t_len[j]] = got[g : g + t_len[j]]
-                        g += t_len[j]
+            for u in np.unique(self.units[rows]):
+                shard_rows = rows[self.units[rows] == u]
+                if needed[shard_rows].any():
+                    self._shard(shard_of_unit[int(u)], shard_rows)
             off += t.num_rows
-        assert pos == n
-        expert_probs = _assemble_probs(probs_chunks, expert_actions)
+        assert self.pos == len(self.expert_actions)
+        return _Gathered(observations=self.observations, expert_actions=self.expert_actions,
+                         expert_probs=_assemble_probs(self.probs_chunks, self.expert_actions), actions=self.actions,
+                         timesteps=self.timesteps, attempt_rows=self.attempt_rows, trajectories=self.trajectories,
+                         trajectory_lengths=self.t_len.astype(np.int64))
 
-        inst = _fixed_lists(att.column("instruction_ids").take(pa.array(sel)), "instruction_ids")
-        corr = _fixed_lists(att.column("correction_ids").take(pa.array(sel)), "correction_ids")
-        return TrainingView(
-            observations=observations,
-            expert_actions=expert_actions,
-            expert_probs=expert_probs,
-            actions=actions,
-            timesteps=timesteps,
-            attempt_rows=attempt_rows,
-            attempt_keys=a_keys.astype(np.int64),
-            round_index=rounds_all[sel].astype(np.int64),
-            unit_index=units_all[sel].astype(np.int64),
-            task_id=att.column("task_id").to_numpy()[sel].astype(np.int64),
-            attempt_index=attempt_index,
-            lengths=lengths,
-            instruction_ids=inst,
-            correction_ids=corr,
-            completion=att.column("completion").to_numpy()[sel].astype(np.float32),
-            success=att.column("success").to_numpy(zero_copy_only=False)[sel].astype(bool),
-            in_window=a_in_window,
-            context_rows=context_rows,
-            trajectories=trajectories,
-            trajectory_lengths=t_len.astype(np.int64),
-            trajectory_stride=stride,
-            trajectory_end_aligned=end_aligned,
-            rounds=tuple(m.round_index for m in manifests),
-        )
+    def _times(self, length: int) -> np.ndarray:
+        return self.times_of[int(length)]
+
+    def _shard(self, shard: ShardRecord, shard_rows: np.ndarray) -> None:
+        in_window = self.rows.in_window
+        z = open_shard_obs(self.loc, shard)
+        win = shard_rows[in_window[shard_rows]]
+        if len(win):
+            self._kept_attempts(shard, z, win)
+        need = shard_rows[self.rows.needed[shard_rows]]
+        ctx_only = need[~in_window[need]]
+        if len(ctx_only):
+            self._context_only(z, ctx_only)
+
+    def _kept_attempts(self, shard: ShardRecord, z: zarr.Array, win: np.ndarray) -> None:
+        """Observations, labels and trajectories of the shard's attempts in the window."""
+        lengths, new_row, pos = self.rows.lengths, self.rows.new_row, self.pos
+        lo = int(self.obs_start[win[0]])
+        hi = int(self.obs_start[win[-1]] + lengths[new_row[win[-1]]])
+        # rows of the kept attempts; one contiguous run unless the window cut a round
+        take = np.concatenate([self.obs_start[i] + np.arange(lengths[new_row[i]]) for i in win]) - lo
+        m_rows = len(take)
+        contiguous = m_rows == hi - lo
+        block = np.asarray(z[lo:hi])
+        self.observations[pos : pos + m_rows] = block if contiguous else block[take]
+        tup = read_shard_table(self.loc, shard, "tuples", ["attempt_key", "expert_action", "action"],
+                               optional=["expert_probs"]).slice(lo, hi - lo)
+        if not contiguous:
+            tup = tup.take(pa.array(take))
+        if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(self.rows.keys[win], lengths[new_row[win]])):
+            raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
+        self.expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
+        self.actions[pos : pos + m_rows] = tup.column("action").to_numpy()
+        probs = tup.column("expert_probs") if "expert_probs" in tup.column_names else None
+        self.probs_chunks.append((pos, _probs_rows(probs)))
+        for i in win:
+            j = new_row[i]
+            self.trajectories[j, : self.t_len[j]] = self.observations[self.tuple_start[j] + self._times(lengths[j])]
+        self.pos += m_rows
+
+    def _context_only(self, z: zarr.Array, ctx_only: np.ndarray) -> None:
+        """Trajectory samples of attempts needed only as earlier context (their tuples fell out)."""
+        lengths = self.rows.lengths
+        js = self.rows.new_row[ctx_only]
+        gather = np.concatenate([self.obs_start[i] + self._times(lengths[j]) for i, j in zip(ctx_only, js)])
+        obs_shape, obs_dtype = self.window.obs_shape, self.window.obs_dtype
+        got = np.asarray(z.oindex[gather]) if len(gather) else np.zeros((0, *obs_shape), obs_dtype)
+        g = 0
+        for j in js:
+            self.trajectories[j, : self.t_len[j]] = got[g : g + self.t_len[j]]
+            g += self.t_len[j]
 
 
 def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, end_aligned: bool,
