@@ -52,6 +52,7 @@ planners assume it is zero.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -234,6 +235,46 @@ def gripper_field(goal: tuple[float, float], blocks: np.ndarray) -> LazyField:
     return LazyField(free, (gi, gj), _GNX, _GNY)
 
 
+@dataclass(frozen=True)
+class _Snapshot:
+    """What the expert reads of the state: gripper pose ``(gx, gy, th)`` with ``c, s = cos, sin(th)``
+    and velocity ``(vx, vy)``; the goal block's position and velocity; the target; the block in the
+    gripper's frame ``(rx, ry)``, and whether it sits in the U (``in_cradle``) or behind its bar
+    (``in_back``)."""
+
+    gx: float
+    gy: float
+    c: float
+    s: float
+    vx: float
+    vy: float
+    bx: float
+    by: float
+    bvx: float
+    bvy: float
+    tx: float
+    ty: float
+    rx: float
+    ry: float
+    in_cradle: bool
+    in_back: bool
+
+    @classmethod
+    def of(cls, e: Any) -> "_Snapshot":
+        q, v = e.data.qpos, e.data.qvel
+        bq = BLOCK_QPOS[e.task.block]
+        gx, gy, th = float(q[0]), float(q[1]), float(q[2])
+        bx, by = float(q[bq]), float(q[bq + 1])
+        c, s = math.cos(th), math.sin(th)
+        # block in the gripper frame
+        rx = c * (bx - gx) + s * (by - gy)
+        ry = -s * (bx - gx) + c * (by - gy)
+        tx, ty = e.task.target
+        return cls(gx=gx, gy=gy, c=c, s=s, vx=float(v[0]), vy=float(v[1]), bx=bx, by=by, bvx=float(v[bq]),
+                   bvy=float(v[bq + 1]), tx=tx, ty=ty, rx=rx, ry=ry,
+                   in_cradle=0.03 < rx < 0.095 and abs(ry) < 0.065, in_back=-0.085 < rx < -0.03 and abs(ry) < 0.05)
+
+
 class RelocationExpert:
     """Cradle-pushing expert (see the module docstring); ``act(env)`` for wrapped or bare envs."""
 
@@ -301,16 +342,14 @@ class RelocationExpert:
 
     def label(self, env: Any) -> Label:
         """``(action, probs)``: the controller's action and the distribution over the actions it
-        holds equally good (the learner's target; see the module docstring, "Labels")."""
+        holds equally good (the learner's target; see the module docstring, "Labels").
+
+        Three steps: read the state (``_Snapshot``), choose the block's next move (``_choose_move``),
+        then push it or approach the pose that can (``_act``).
+        """
         e = getattr(env, "unwrapped", env)
         q = e.data.qpos
-        v = e.data.qvel
-        bq = BLOCK_QPOS[e.task.block]
-        gx, gy, th = float(q[0]), float(q[1]), float(q[2])
-        vx, vy = float(v[0]), float(v[1])
-        bx, by = float(q[bq]), float(q[bq + 1])
-        bvx, bvy = float(v[bq]), float(v[bq + 1])
-        tx, ty = e.task.target
+        st = _Snapshot.of(e)
         mem = self._memory.get(id(e))
         if mem is None or mem[1] > e.steps:
             mem = [0, e.steps]
@@ -318,56 +357,55 @@ class RelocationExpert:
                 self._memory.clear()
             self._memory[id(e)] = mem
         mem[1] = e.steps
-        c, s = math.cos(th), math.sin(th)
-        # block in the gripper frame
-        rx = c * (bx - gx) + s * (by - gy)
-        ry = -s * (bx - gx) + c * (by - gy)
-        in_cradle = 0.03 < rx < 0.095 and abs(ry) < 0.065
-        in_back = -0.085 < rx < -0.03 and abs(ry) < 0.05
-
-        # -- which way the block should go
-        ex, ey = tx - (bx + bvx * _TAU_BLOCK), ty - (by + bvy * _TAU_BLOCK)
-        tied: tuple[int, ...] = ()
-        if abs(tx - bx) < _FINE and abs(ty - by) < _FINE:
-            if abs(ex) < _HOLD and abs(ey) < _HOLD:
-                move = None
-            elif abs(ex) >= abs(ey) and not (ex < 0 and ex > -0.02 and abs(ey) >= _HOLD):
-                move = 0 if ex > 0 else 1
-            elif abs(ey) >= _HOLD:
-                move = 2 if ey > 0 else 3
-            else:
-                move = None
-        else:
-            # plan from where the block will coast to (the gripper carries it ~0.03 further)
-            move, tied = self._plan_move(e, q, bx + bvx * 0.045, by + bvy * 0.045, ry, mem[0])
-            if move is None:  # off the plan: straight at the target
-                dx, dy = tx - bx, ty - by
-                move = (0 if dx > 0 else 1) if abs(dx) >= abs(dy) else (2 if dy > 0 else 3)
+        move, tied = self._choose_move(e, q, st, mem[0])
         if move is not None:
             mem[0] = move
+        return self._act(e, q, st, move, tied)
 
+    def _choose_move(self, e: Any, q: np.ndarray, st: "_Snapshot", last: int) -> tuple[int | None, tuple[int, ...]]:
+        """``(move, tied)``: which way the block should go next (None: it is where it should be)."""
+        tx, ty, bx, by = st.tx, st.ty, st.bx, st.by
+        ex, ey = tx - (bx + st.bvx * _TAU_BLOCK), ty - (by + st.bvy * _TAU_BLOCK)
+        if abs(tx - bx) < _FINE and abs(ty - by) < _FINE:
+            if abs(ex) < _HOLD and abs(ey) < _HOLD:
+                return None, ()
+            if abs(ex) >= abs(ey) and not (ex < 0 and ex > -0.02 and abs(ey) >= _HOLD):
+                return (0 if ex > 0 else 1), ()
+            if abs(ey) >= _HOLD:
+                return (2 if ey > 0 else 3), ()
+            return None, ()
+        # plan from where the block will coast to (the gripper carries it ~0.03 further)
+        move, tied = self._plan_move(e, q, bx + st.bvx * 0.045, by + st.bvy * 0.045, st.ry, last)
+        if move is None:  # off the plan: straight at the target
+            dx, dy = tx - bx, ty - by
+            move = (0 if dx > 0 else 1) if abs(dx) >= abs(dy) else (2 if dy > 0 else 3)
+        return move, tied
+
+    def _act(self, e: Any, q: np.ndarray, st: "_Snapshot", move: int | None, tied: tuple[int, ...]) -> Label:
+        """Push the block ``move``-wards when the gripper is in the pose for it, else approach the pose."""
+        gx, gy, vx, vy, bx, by, c, s = st.gx, st.gy, st.vx, st.vy, st.bx, st.by, st.c, st.s
         # -- in the pose: push
         if move is None:
-            if in_cradle:
+            if st.in_cradle:
                 return self._goto(gx, gy, vx, vy, bx - c * (_CRADLE_X + 0.03), by - s * (_CRADLE_X + 0.03))
-            if in_back:
+            if st.in_back:
                 return self._goto(gx, gy, vx, vy, bx + c * (_CRADLE_X + 0.03), by + s * (_CRADLE_X + 0.03))
-            move = 0 if tx > bx else 1  # settle in a pose near the block
-        if move != 1 and in_cradle:
+            move = 0 if st.tx > bx else 1  # settle in a pose near the block
+        if move != 1 and st.in_cradle:
             # equal-cost moves the cradle can make are equally good; -x needs the other pose
             pushes = [_MOVE_ACTION[k] for k in tied if k != 1] or [_MOVE_ACTION[move]]
             probs = np.zeros(4, dtype=np.float32)
             probs[pushes] = 1.0 / len(pushes)
             return _MOVE_ACTION[move], probs
-        if move == 1 and in_back:
+        if move == 1 and st.in_back:
             return 3, _one_hot(3)
         # -- approach the pose
         sign = 1.0 if move != 1 else -1.0
         # slide in along the U's axis when on the lane behind the pose
-        lane_x = sign * rx
-        if 0.085 <= lane_x < 0.32 and abs(ry) < 0.04:
+        lane_x = sign * st.rx
+        if 0.085 <= lane_x < 0.32 and abs(st.ry) < 0.04:
             vlat = -s * vx + c * vy
-            elat = ry - vlat * _TAU_FREE
+            elat = st.ry - vlat * _TAU_FREE
             if abs(elat) > 0.02:
                 nx_, ny_ = (-s, c) if elat > 0 else (s, -c)
                 return self._goto(gx, gy, 0.0, 0.0, gx + nx_, gy + ny_, 0.0)
