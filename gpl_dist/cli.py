@@ -15,6 +15,9 @@ import sys
 import traceback
 from pathlib import Path
 
+#: An error line is cut here (a value given on the command line can be arbitrarily long).
+MAX_MESSAGE_CHARS = 600
+
 
 def parse_overrides(pairs: list[str]) -> dict[str, str]:
     """``--set KEY=VALUE`` arguments as the dotted-key mapping ``load_config`` applies."""
@@ -77,9 +80,12 @@ def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
     if text is None:
         return None
     try:
-        return tuple(int(s) for s in text.split(","))
+        seeds = tuple(int(s) for s in text.split(","))
     except ValueError:
         raise UsageError(f"--seeds takes comma-separated integers (e.g. 0,1,2), got '{text[:80]}'") from None
+    if len(set(seeds)) != len(seeds):
+        raise UsageError(f"--seeds repeats a seed: {text[:80]}")
+    return seeds
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
@@ -101,8 +107,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """``gpl-dist render``: a task's start state as PNG, or an attempt as GIF."""
+    from gpl_dist.errors import UsageError
     from gpl_dist.rendering import attempt_frames, parse_actions, write_picture
 
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
     actions = parse_actions(args.actions) if args.actions else None
     frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
     out = write_picture(frames, args.out)
@@ -145,7 +154,8 @@ def cmd_verify(args: argparse.Namespace) -> int:
         with Lease(root, "gpl-dist verify --quarantine"):
             for r in report.bad_rounds:
                 moved = quarantine_round(root, r)
-                print(f"quarantined round {r}: moved {', '.join(moved)} under quarantine/")
+                what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
+                print(f"quarantined round {r}: {what} under quarantine/")
         print("resume with: gpl-dist train --run-dir RUN_DIR --resume (rounds after the last checkpoint are collected again)")
         return 0
     print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
@@ -163,7 +173,7 @@ def cmd_clean(args: argparse.Namespace) -> int:
     verb = "would remove" if args.dry_run else "removed"
     for path in removed:
         print(f"{verb} {path}")
-    print(f"{verb} {len(removed)} leftover file(s)")
+    print(f"{verb} {len(removed)} leftover(s)")
     unlisted = [p for p in verify_buffer(root, checksums=False).problems if p.path.startswith("data/")]
     if unlisted:
         print(f"kept {len(unlisted)} path(s) under data/ that no manifest lists (clean never removes committed "
@@ -210,8 +220,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--env", required=True, choices=domain_names())
     p.add_argument("--task", required=True, type=int)
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
-    p.add_argument("--actions", help="actions of the attempt: '0,1,3,...' or a file holding them")
-    p.add_argument("--expert", action="store_true", help="draw the expert's attempt")
+    drawn = p.add_mutually_exclusive_group()
+    drawn.add_argument("--actions", help="actions of the attempt: '0,1,3,...' or a file holding them")
+    drawn.add_argument("--expert", action="store_true", help="draw the expert's attempt")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_render)
 
@@ -243,10 +254,12 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return args.func(args)
-    except (UserError, ValueError, FileNotFoundError, FileExistsError) as err:
+    except (UserError, ValueError, OSError) as err:  # OSError: paths, permissions, names too long
         if args.verbose:
             traceback.print_exc()
         message = " ".join(str(err).split())  # one line, whatever the message held
+        if len(message) > MAX_MESSAGE_CHARS:
+            message = message[:MAX_MESSAGE_CHARS] + " [...]"
         print(f"gpl-dist: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

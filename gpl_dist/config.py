@@ -232,9 +232,9 @@ def _set_override(tree: dict, dotted: str, raw: str) -> None:
         if not isinstance(node, dict):
             raise ConfigError(f"override {dotted}: '{key}' is not a section")
     try:
-        node[keys[-1]] = yaml.safe_load(raw)
-    except yaml.YAMLError:
-        raise ConfigError(f"override {dotted}={raw!r}: the value is not valid YAML") from None
+        node[keys[-1]] = yaml.load(raw, Loader=_UniqueKeyLoader)
+    except (yaml.YAMLError, ValueError):  # ValueError: e.g. an integer of more than 4300 digits
+        raise ConfigError(f"override {dotted}={raw[:80]!r}: the value is not valid YAML") from None
 
 
 def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | None = None) -> RunConfig:
@@ -247,17 +247,27 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
         if not p.is_file():
             raise ConfigError(f"config file not found: {p}")
         try:
-            tree = yaml.safe_load(p.read_text()) or {}
-        except yaml.YAMLError as err:
+            tree = yaml.load(p.read_text(), Loader=_UniqueKeyLoader) or {}
+        except UnicodeDecodeError:
+            raise ConfigError(f"{p} is not a text file") from None
+        except (yaml.YAMLError, ValueError) as err:
             mark = getattr(err, "problem_mark", None)
             line = f" line {mark.line + 1}" if mark is not None else ""
-            raise ConfigError(f"{p}:{line} is not valid YAML") from None
+            problem = getattr(err, "problem", None)
+            reason = f": {problem}" if isinstance(problem, str) else ""
+            raise ConfigError(f"{p}:{line} is not valid YAML{reason}") from None
         if not isinstance(tree, dict):
             raise ConfigError(f"{p}: top level must be a mapping")
     for dotted, raw in (overrides or {}).items():
         _set_override(tree, dotted, raw)
+    if overrides:
+        source += " with --set " + " ".join(sorted(overrides))[:120]
     return config_from_dict(tree, source)
 
+
+#: Corrections per task, in collection and at meta-test: the paper goes to 10; each one adds a
+#: whole attempt and grows the conditioning of every later one.
+MAX_CORRECTIONS = 100
 
 _VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction")
 _DEVICES = ("auto", "cpu", "cuda")
@@ -282,7 +292,8 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         _one_of("training.device", cfg.training.device, _DEVICES),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
         (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
-        (cfg.collection.num_corrections >= 0, "collection.num_corrections must be >= 0"),
+        (0 <= cfg.collection.num_corrections <= MAX_CORRECTIONS,
+         f"collection.num_corrections must be in 0..{MAX_CORRECTIONS}, got {cfg.collection.num_corrections}"),
         (cfg.collection.tasks_per_unit >= 1, "collection.tasks_per_unit must be at least 1"),
         (cfg.collection.max_unit_retries >= 0, "collection.max_unit_retries must be >= 0"),
         (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
@@ -293,8 +304,10 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.training.batch_size >= 1, "training.batch_size must be at least 1"),
         (cfg.training.states_per_chunk >= 1, "training.states_per_chunk must be at least 1"),
         (cfg.training.num_threads >= 0, "training.num_threads must be >= 0 (0 leaves torch's default)"),
-        (cfg.eval.num_corrections >= 0, "eval.num_corrections must be >= 0"),
+        (0 <= cfg.eval.num_corrections <= MAX_CORRECTIONS,
+         f"eval.num_corrections must be in 0..{MAX_CORRECTIONS}, got {cfg.eval.num_corrections}"),
         (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),
+        (len(set(cfg.eval.seeds)) == len(cfg.eval.seeds), "eval.seeds must not repeat a seed"),
         (cfg.eval.max_tasks >= 0, "eval.max_tasks must be >= 0 (0 evaluates every task of the split)"),
     ]
     for ok, message in checks:
@@ -323,6 +336,23 @@ def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
         (not bad_ids, f"env.task_ids {bad_ids[:5]} are outside {domain}'s tasks 0..{num_tasks - 1}"),
         (len(set(cfg.env.task_ids)) == len(cfg.env.task_ids), "env.task_ids must not repeat a task"),
     ]
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a mapping that repeats a key (PyYAML keeps the last one silently)."""
+
+
+def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    seen: set = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node)  # type: ignore[no-untyped-call]
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"repeated key '{str(key)[:80]}'", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _unique_mapping)
 
 
 def config_to_dict(cfg: Any) -> dict:

@@ -18,7 +18,13 @@ from gpl_dist.domains import get_domain
 def parse_actions(text: str) -> list[int]:
     """Actions from ``"0,1,1,3"`` or a file holding such a list (commas or whitespace)."""
     p = Path(text)
-    raw = p.read_text() if p.is_file() else text
+    looks_like_list = all(ch.isdigit() or ch in ", \t\n-" for ch in text)
+    if not looks_like_list and not p.is_file():
+        raise FileNotFoundError(f"no actions file at {text[:200]} (give '0,1,3,...' or a file holding them)")
+    try:
+        raw = p.read_text() if p.is_file() else text
+    except UnicodeDecodeError:
+        raise ValueError(f"actions file {text[:200]} is not text") from None
     parts = raw.replace(",", " ").split()
     try:
         return [int(x) for x in parts]

@@ -14,6 +14,7 @@ before the driver died is not collected again: training resumes on the committed
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -25,9 +26,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from gpl_dist.config import ConfigError, RunConfig, config_to_dict, save_config
+from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_dict, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.errors import RunDirError
+from gpl_dist.errors import RunDirError, UsageError
 from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import build_model_from_config
 from gpl_dist.records import WorkUnit
@@ -160,12 +161,15 @@ class _Progress:
         return tqdm(total=num_epochs, desc=f"round {round_index} train", unit="epoch", leave=False)
 
 
-def preflight(cfg: RunConfig) -> tuple[int, ...]:
-    """Checks that need more than the config itself (the device, the task list); returns the tasks.
-
-    Runs before anything is written, so a run that cannot start leaves no trace.
-    """
+def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
+    """Checks that need more than the config itself (the device, the task list, a cluster's
+    address); returns the tasks. Runs before anything is written, so a run that cannot start
+    leaves no trace."""
     resolve_device(cfg.training.device)
+    if address:
+        from workers.ray_pool import check_reachable  # Ray is imported only where a run uses it
+
+        check_reachable(address)
     tasks = training_tasks(cfg)
     if not tasks:
         raise ConfigError(f"no training tasks: split '{cfg.env.train_split}' with env.max_train_tasks={cfg.env.max_train_tasks}")
@@ -203,6 +207,32 @@ def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path) -> None
                                        f"{missing} are not committed (a different buffer?); {hint}")
 
 
+def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> None:
+    """What ``--resume`` must refuse before any work: a run whose latest checkpoint is gone while
+    it has trained rounds (starting over would overwrite them), a change of the domain or of the
+    model (the checkpoint would not fit, or would silently become another method), and a round
+    count the run has already reached."""
+    if ckpt is None:
+        trained = sorted((run_dir / "checkpoints").glob("round-*.pt"))
+        metrics = run_dir / "metrics.jsonl"
+        if trained or (metrics.exists() and metrics.stat().st_size > 0):
+            newest = trained[-1].name if trained else "none"
+            raise RunDirError(f"{run_dir / 'checkpoints' / LATEST} is missing but the run has trained rounds "
+                              f"(newest round checkpoint: {newest}); copy that file to {LATEST} to resume from it, "
+                              "or train into another --run-dir")
+        return
+    saved = config_from_dict(ckpt.config, "the checkpoint's config")
+    changed = [f"env.domain ({saved.env.domain} -> {cfg.env.domain})"] if saved.env.domain != cfg.env.domain else []
+    changed += [f"model.{f.name} ({getattr(saved.model, f.name)} -> {getattr(cfg.model, f.name)})"
+                for f in dataclasses.fields(cfg.model) if getattr(saved.model, f.name) != getattr(cfg.model, f.name)]
+    if changed:
+        raise ConfigError(f"--resume cannot change {', '.join(changed)}: the checkpoint was trained so; "
+                          "start a new run for another domain or model")
+    if ckpt.round_index + 1 >= cfg.training.num_rounds:
+        raise UsageError(f"{run_dir} has finished {ckpt.round_index + 1} rounds and training.num_rounds is "
+                         f"{cfg.training.num_rounds}: nothing to do (set training.num_rounds higher to go on)")
+
+
 def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, address: str | None = None,
                  resume: bool = False, progress: bool = True, collector=None) -> TrainingResult:
     """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray.
@@ -212,7 +242,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     the checkpoint and every committed file have been checked.
     """
     run_dir = Path(run_dir)
-    tasks = preflight(cfg)
+    tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST
     if not resume:
@@ -223,6 +253,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
             held.enter_context(Lease(root, "gpl-dist train"))
         ckpt = load_checkpoint(ckpt_path) if resume and ckpt_path.exists() else None
         if resume:
+            check_resumable(cfg, run_dir, ckpt)
             verify_for_resume(root, ckpt, run_dir)
         return _train(cfg, run_dir, root, tasks, ckpt, serial=serial, address=address, progress=progress,
                       collector=collector)
@@ -246,14 +277,14 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
         restore_rng(ckpt.rng_state, learner.generator)
         start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
         log.info("resuming %s at round %d", run_dir, start_round)
-    save_config(cfg, run_dir / "config.yaml")
-    mark_buffer(root, run_id)
-
-    if collector is None:
+    if collector is None:  # before anything is written: joining a cluster can fail
         collector = _make_collector(cfg, settings, root, run_id, serial=serial, address=address)
-    round_loop = _RoundLoop(cfg, domain, tasks, learner, collector, root, _Progress(progress))
-    tb = _tensorboard(run_dir)
+    tb = None
     try:
+        save_config(cfg, run_dir / "config.yaml")
+        mark_buffer(root, run_id)
+        round_loop = _RoundLoop(cfg, domain, tasks, learner, collector, root, _Progress(progress))
+        tb = _tensorboard(run_dir)
         for r in range(start_round, cfg.training.num_rounds):
             metrics = round_loop.run(r)
             history.append(metrics)

@@ -14,13 +14,14 @@ checkpoint are used; any other setting gets its own name (``eval-greedy.json``,
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from gpl_dist.config import RunConfig, config_from_dict
+from gpl_dist.config import MAX_CORRECTIONS, RunConfig, config_from_dict
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
@@ -158,8 +159,12 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     for name, value in (("corrections", num_corrections), ("max_tasks", max_tasks)):
         if value is not None and value < 0:
             raise UsageError(f"{name} must be >= 0, got {value}")
+    if num_corrections is not None and num_corrections > MAX_CORRECTIONS:
+        raise UsageError(f"corrections must be at most {MAX_CORRECTIONS}, got {num_corrections}")
     if seeds is not None and not seeds:
         raise UsageError("seeds must name at least one seed")
+    if run_dir.is_dir() and not os.access(run_dir, os.W_OK):
+        raise UsageError(f"cannot write the report into {run_dir} (no write permission)")
     ckpt_file = Path(checkpoint) if checkpoint else run_dir / "checkpoints" / LATEST
     ckpt = load_checkpoint(ckpt_file)
     cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")

@@ -9,14 +9,13 @@ is reported by ``gpl-dist verify``, not removed.
 
 from __future__ import annotations
 
-import json
 import os
 import time
 
 from gpl_dist.errors import RunDirError
-from storage.commit import recover_pending
+from storage.commit import load_journal, pending_journals, recover_pending
 from storage.fs import Location, resolve
-from storage.layout import BUFFER_MARKER, MANIFESTS, STAGING, TMP_PREFIX, parse_pending_name, parse_round_dir
+from storage.layout import BUFFER_MARKER, MANIFESTS, STAGING, TMP_PREFIX, parse_round_dir
 from storage.lease import Lease, lease_holder
 from storage.manifest import committed_rounds, is_buffer
 
@@ -33,7 +32,7 @@ def clean_leftovers(root: "str | os.PathLike[str] | Location", dry_run: bool = F
     """
     loc = resolve(root)
     if not is_buffer(loc):
-        raise RunDirError(f"{loc.url} is not a gpl-dist buffer (no {BUFFER_MARKER}, no {MANIFESTS}/); nothing removed")
+        raise RunDirError(f"{loc.url} is not a gpl-dist buffer (no {BUFFER_MARKER}, no committed manifest); nothing removed")
     if dry_run:
         holder = lease_holder(loc)
         if holder is not None:
@@ -51,11 +50,10 @@ def clean_leftovers(root: "str | os.PathLike[str] | Location", dry_run: bool = F
 def _pending_files(loc: Location) -> set[str]:
     """Files named by commit journals (a dry run leaves them where they are)."""
     files: set[str] = set()
-    for name in loc.listdir(MANIFESTS):
-        if parse_pending_name(name) is not None:
-            journal = json.loads(loc.read_bytes(f"{MANIFESTS}/{name}").decode())
-            files.update(dst for _, dst, _ in journal["moves"])
-            files.update(src for src, _, _ in journal["moves"])
+    for name in pending_journals(loc):
+        journal = load_journal(loc, name)
+        files.update(dst for _, dst, _ in journal["moves"])
+        files.update(src for src, _, _ in journal["moves"])
     return files
 
 

@@ -26,8 +26,10 @@ from gpl_dist.faults import fault_point
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve
 from storage.layout import (
+    DATA,
     MANIFESTS,
     OBS_DIR,
+    STAGING,
     TRY_PREFIX,
     committed_path,
     manifest_path,
@@ -117,18 +119,45 @@ def _roll_forward(loc: Location, journal: dict[str, Any]) -> RoundManifest:
     return manifest
 
 
+def load_journal(loc: Location, name: str) -> dict[str, Any]:
+    """The commit journal ``manifests/<name>``, checked: it parses, has a manifest and moves, and
+    every move goes from ``staging/`` to ``data/`` inside the root. ``BufferIntegrityError`` naming
+    the journal otherwise (a damaged journal is never rolled forward)."""
+    rel = f"{MANIFESTS}/{name}"
+    try:
+        journal = json.loads(loc.read_bytes(rel).decode())
+    except (ValueError, UnicodeDecodeError) as err:
+        raise BufferIntegrityError(f"commit journal {rel} in {loc.url} is unreadable ({type(err).__name__})", rel) from None
+    if not isinstance(journal, dict) or not isinstance(journal.get("manifest"), dict) or \
+            not isinstance(journal.get("moves"), list):
+        raise BufferIntegrityError(f"commit journal {rel} in {loc.url} lacks its manifest or moves", rel)
+    for move in journal["moves"]:
+        ok = (isinstance(move, list) and len(move) == 3 and all(isinstance(p, str) for p in move[:2])
+              and _inside(move[0], STAGING) and _inside(move[1], DATA))
+        if not ok:
+            raise BufferIntegrityError(f"commit journal {rel} in {loc.url} has a move outside staging/ -> data/: "
+                                       f"{str(move)[:120]}", rel)
+    return journal
+
+
+def _inside(path: str, top: str) -> bool:
+    parts = path.split("/")
+    return parts[0] == top and len(parts) > 1 and not any(p in ("", ".", "..") for p in parts)
+
+
+def pending_journals(root: "str | Location") -> list[str]:
+    """File names of the commit journals under ``manifests/`` (half-done commits)."""
+    return [name for name in resolve(root).listdir(MANIFESTS) if parse_pending_name(name) is not None]
+
+
 def recover_pending(root: "str | Location") -> list[int]:
     """Finish every commit a crashed driver left half done; returns the rounds it finished."""
     loc = resolve(root)
     done = []
-    for name in loc.listdir(MANIFESTS):
-        r = parse_pending_name(name)
-        if r is None:
-            continue
-        journal = json.loads(loc.read_bytes(f"{MANIFESTS}/{name}").decode())
-        _roll_forward(loc, journal)
-        done.append(r)
-    return done
+    for name in pending_journals(loc):
+        _roll_forward(loc, load_journal(loc, name))
+        done.append(parse_pending_name(name))
+    return [r for r in done if r is not None]
 
 
 def commit_round(

@@ -20,6 +20,7 @@ from typing import Iterable
 import fsspec
 from fsspec.implementations.local import LocalFileSystem
 
+from gpl_dist.errors import RunDirError
 from storage.layout import TMP_PREFIX
 
 
@@ -155,7 +156,12 @@ def resolve(root: "str | os.PathLike[str] | Location") -> Location:
     if isinstance(root, Location):
         return root
     url = os.fspath(root)
-    fs, path = fsspec.core.url_to_fs(url)
+    try:
+        fs, path = fsspec.core.url_to_fs(url)
+    except ImportError as err:  # e.g. s3:// without s3fs
+        raise RunDirError(f"cannot open {url}: {err}") from None
+    except ValueError as err:  # an unknown protocol
+        raise RunDirError(f"cannot open {url}: {err}") from None
     if isinstance(fs, LocalFileSystem):
         path = os.path.abspath(path)
     return Location(fs=fs, root=path.rstrip("/") or "/", url=url)

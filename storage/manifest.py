@@ -171,6 +171,7 @@ def mark_buffer(root: "str | Location", run_id: str) -> None:
 
 
 def is_buffer(root: "str | Location") -> bool:
-    """Whether ``root`` is a gpl-dist buffer: marked by a driver, or holding committed manifests."""
+    """Whether ``root`` is a gpl-dist buffer: marked by a driver, or holding a committed manifest
+    (``manifests/round-NNNNNN.json``; a ``manifests/`` folder alone is not enough)."""
     loc = resolve(root)
-    return loc.exists(BUFFER_MARKER) or loc.isdir(MANIFESTS)
+    return loc.exists(BUFFER_MARKER) or bool(committed_rounds(loc))

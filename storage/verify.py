@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+from storage.commit import load_journal, pending_journals
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve, sha256_hex
 from storage.layout import (
@@ -29,10 +30,15 @@ from storage.layout import (
     TMP_PREFIX,
     manifest_path,
     parse_manifest_name,
+    parse_pending_name,
     parse_round_dir,
+    pending_path,
     round_dir,
 )
 from storage.manifest import RoundManifest, parse_manifest
+
+#: Written under ``quarantine/round-R/`` for a round of which nothing was left.
+MISSING_NOTE = "MISSING.txt"
 
 
 @dataclass(frozen=True)
@@ -131,6 +137,18 @@ def _unlisted_data(loc: Location, listed: set[str], committed: set[int], unreada
     return problems
 
 
+def _journal_problems(loc: Location) -> list[Problem]:
+    """Commit journals that could not be rolled forward (a sound one is finished by ``--resume``)."""
+    problems = []
+    for name in pending_journals(loc):
+        try:
+            load_journal(loc, name)
+        except BufferIntegrityError as err:
+            problems.append(Problem(f"{MANIFESTS}/{name}", parse_pending_name(name),
+                                    "commit journal " + str(err).split(f" in {loc.url} ", 1)[-1]))
+    return problems
+
+
 def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = True) -> VerifyReport:
     """Check the committed part of the buffer at ``root`` (see the module docstring)."""
     loc = resolve(root)
@@ -153,6 +171,7 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
         problems += p
         files += n
         nbytes += b
+    problems += _journal_problems(loc)
     quarantined = quarantined_rounds(loc)
     unreadable = {p.round_index for p in problems if p.path.startswith(MANIFESTS) and p.round_index is not None}
     problems += _unlisted_data(loc, listed, set(rounds), unreadable)
@@ -167,15 +186,18 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
 
 
 def quarantine_round(root: "str | os.PathLike[str] | Location", round_index: int) -> list[str]:
-    """Move round ``round_index``'s manifest and data under ``quarantine/round-R/``; returns what moved."""
+    """Move round ``round_index``'s manifest, commit journal and data under ``quarantine/round-R/``;
+    returns what moved. A round of which nothing is left is recorded there as missing (an empty
+    list is returned), so that it counts as set aside."""
     loc = resolve(root)
     dest = f"{QUARANTINE}/{round_dir(round_index)}"
     moved = []
-    sources = [manifest_path(round_index)] + [f"{DATA}/{role}/{round_dir(round_index)}" for role in ROLES]
+    sources = [manifest_path(round_index), pending_path(round_index)]
+    sources += [f"{DATA}/{role}/{round_dir(round_index)}" for role in ROLES]
     for rel in sources:
         if loc.exists(rel):
             loc.move(rel, f"{dest}/{rel}")
             moved.append(rel)
     if not moved:
-        raise BufferIntegrityError(f"{loc.url} holds nothing of round {round_index} to quarantine")
+        loc.write_bytes_atomic(f"{dest}/{MISSING_NOTE}", b"nothing of this round was left when it was quarantined\n")
     return moved

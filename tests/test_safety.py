@@ -94,7 +94,7 @@ def test_clean_never_removes_committed_data_even_without_its_manifest(run_copy, 
     (buffer / "manifests" / "round-000000.json").unlink()
     assert main(["clean", str(run_copy)]) == 0
     out = capsys.readouterr().out
-    assert "removed 0 leftover file(s)" in out and "kept" in out and "no manifest lists" in out
+    assert "removed 0 leftover(s)" in out and "kept" in out and "no manifest lists" in out
     assert all(p.exists() for p in round0)
     assert main(["verify", str(run_copy)]) == 2
     out = capsys.readouterr().out
@@ -374,3 +374,117 @@ def test_the_shared_test_cluster_listens_on_loopback_only(ray_cluster):
     exposed = [(psutil.Process(p).name(), ip, port) for p, ip, port in listening if not _is_loopback(ip)]
     assert not exposed, f"Ray listens beyond loopback: {exposed}"
     ray_cluster.kill(probe)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# more probes of the same kind
+
+
+def test_a_manifests_folder_alone_does_not_make_a_buffer(tmp_path, capsys):
+    repo = tmp_path / "k8s"
+    (repo / "manifests" / "base").mkdir(parents=True)
+    deployment = repo / "staging" / "overlays" / "prod" / "app" / "deployment.yaml"
+    deployment.parent.mkdir(parents=True)
+    deployment.write_text("kind: Deployment\n")
+    assert main(["clean", str(repo)]) == 2
+    _one_line_error(capsys, "holds no gpl-dist run or buffer")
+    assert deployment.read_text() == "kind: Deployment\n"
+    assert not list(repo.rglob("_lease*")), "a refused clean left a lock file"
+
+
+def test_resume_without_latest_checkpoint_never_starts_over(run_copy, capsys):
+    (run_copy / "checkpoints" / "latest.pt").unlink()
+    before = _snapshot(run_copy)
+    assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress",
+                 "--set", "training.num_rounds=3"]) == 2
+    _one_line_error(capsys, "latest.pt is missing but the run has trained rounds", "round-000001.pt")
+    assert _snapshot(run_copy) == before
+
+
+def test_resume_refuses_another_model_or_domain_and_a_reached_round_count(run_copy, capsys):
+    before = _snapshot(run_copy)
+    for override, needle in [("model.variant=instruction_only", "--resume cannot change model.variant (gpl -> instruction_only)"),
+                             ("model.embedding_dim=8", "model.embedding_dim (16 -> 8)"),
+                             ("training.num_rounds=2", "has finished 2 rounds and training.num_rounds is 2")]:
+        assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress", "--set", override]) == 2
+        _one_line_error(capsys, needle)
+    assert _snapshot(run_copy) == before
+
+
+def test_a_round_missing_whole_is_set_aside_and_training_goes_on(run_copy, capsys):
+    root = run_copy / "buffer"
+    (root / "manifests" / "round-000000.json").unlink()
+    for role in ("attempts", "tuples", "obs"):
+        shutil.rmtree(root / "data" / role / "round-000000")
+    assert main(["verify", str(run_copy)]) == 2
+    assert "round 0 is missing" in capsys.readouterr().out
+    assert main(["verify", str(run_copy), "--quarantine"]) == 0
+    assert "quarantined round 0: nothing was left of it; recorded it as missing" in capsys.readouterr().out
+    assert main(["verify", str(run_copy)]) == 0
+    assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress",
+                 "--set", "training.num_rounds=3"]) == 0
+    assert (root / "manifests" / "round-000002.json").exists()
+
+
+def test_a_damaged_commit_journal_is_named_and_never_followed(run_copy, tmp_path, capsys):
+    import json
+
+    root = run_copy / "buffer"
+    journal = root / "manifests" / "_pending-round-000002.json"
+    journal.write_text('{"manifest": {"round_index": 2}, "mo')  # truncated
+    before = _snapshot(run_copy)
+    assert main(["verify", str(run_copy)]) == 2
+    assert "BAD  manifests/_pending-round-000002.json: commit journal" in capsys.readouterr().out
+    for command in (["clean", str(run_copy)], ["clean", "--dry-run", str(run_copy)],
+                    ["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress",
+                     "--set", "training.num_rounds=3"]):
+        assert main(command) == 2
+        _one_line_error(capsys, "_pending-round-000002.json")
+    assert _snapshot(run_copy) == before
+    # a journal whose move reaches outside the buffer is refused, and the outside file stays where it is
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine")
+    journal.write_text(json.dumps({"manifest": {"round_index": 2}, "moves": [["../../../victim.txt", "data/x", 4]]}))
+    assert main(["clean", str(run_copy)]) == 2
+    _one_line_error(capsys, "has a move outside staging/ -> data/")
+    assert victim.read_text() == "mine"
+
+
+def test_environment_problems_answer_in_one_line(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("x")
+    start = time.perf_counter()
+    probes = [(["train", "--config", "configs/multiroom-smoke.yaml", "--serial", "--run-dir", str(afile / "sub")], None),
+              (["inspect", str(tmp_path / ("n" * 300))], "File name too long"),
+              (["train", "--config", "configs/multiroom-smoke.yaml", "--run-dir", str(tmp_path / "r"),
+                "--address", "127.0.0.1:1"], "cannot reach a Ray cluster at 127.0.0.1:1"),
+              (["render", "--env", "multiroom", "--task", "1", "--out", str(tmp_path / "r.png"), "--seed", "-1"],
+               "--seed must be >= 0"),
+              (["render", "--env", "multiroom", "--task", "1", "--out", str(tmp_path / "r.gif"), "--actions",
+                str(tmp_path / "missing.txt")], "no actions file at")]
+    for args, needle in probes:
+        assert main(args) == 2, args
+        _one_line_error(capsys, *([needle] if needle else []))
+    assert not (tmp_path / "r").exists()
+    assert time.perf_counter() - start < 60
+
+
+def test_config_text_mistakes_are_named(tmp_path, capsys):
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("seed: 1\ntraining:\n  num_rounds: 2\n  num_rounds: 3\n")
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(256)))
+    for args, needle in [(["--config", str(twice)], "repeated key 'num_rounds'"),
+                         (["--config", str(binary)], "is not a text file"),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "seed=" + "9" * 5000],
+                          "override seed="),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "eval.seeds=[1,1]"],
+                          "eval.seeds must not repeat a seed"),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "collection.num_corrections=1000"],
+                          "collection.num_corrections must be in 0..100"),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "env.domain=" + "x" * 100_000],
+                          "env.domain must be one of")]:
+        assert main(["train", *args, "--serial", "--run-dir", str(tmp_path / "run")]) == 2
+        err = _one_line_error(capsys, needle)
+        assert len(err) < 1000
+    assert not (tmp_path / "run").exists()

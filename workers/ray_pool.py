@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -29,6 +30,7 @@ from contextlib import contextmanager
 import ray
 from ray.exceptions import RayActorError, RayTaskError
 
+from gpl_dist.errors import UsageError
 from gpl_dist.records import WorkUnit
 from workers.pool import UnitResult, make_worker, run_unit
 from workers.rollout import RolloutSettings
@@ -92,6 +94,22 @@ def _loopback_only():
             os.environ[_LOCAL_ONLY_ENV] = before_env
 
 
+#: Seconds to wait for a TCP connection to a cluster's GCS before giving up.
+CONNECT_TIMEOUT_S = 10.0
+
+
+def check_reachable(address: str) -> None:
+    """Fail in one line, at once, when ``--address host:port`` cannot be reached: Ray itself
+    retries an unreachable GCS for minutes. ``auto`` and ``ray://`` addresses are left to Ray."""
+    host, sep, port = address.rpartition(":")
+    if not sep or address == "auto" or "://" in address or not port.isdigit():
+        return
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as err:
+        raise UsageError(f"cannot reach a Ray cluster at {address} ({err.strerror or err})") from None
+
+
 def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None, **kwargs) -> bool:
     """Start or join Ray; returns True when this call started a local cluster (and owns it).
 
@@ -101,6 +119,7 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
     if ray.is_initialized():
         return False
     if address:
+        check_reachable(address)
         ray.init(address=address, log_to_driver=True, **kwargs)
         return False
     with _loopback_only():
