@@ -2,9 +2,9 @@
 
 Heavy imports (torch, Ray, storage) happen inside each subcommand so ``gpl-dist --help`` is fast.
 One error path: every expected failure (``gpl_dist.errors.UserError``: config, storage integrity,
-checkpoint, device, run dir, usage; and the ``ValueError``/``FileNotFoundError`` of a bad argument)
-prints one line naming the problem and exits with status 2 (``-v`` adds its traceback). Anything
-else is a bug and prints its traceback.
+checkpoint, device, run dir, usage; and an ``OSError`` of the user's paths and permissions) prints
+one line naming the problem and exits with status 2 (``-v`` adds its traceback). Anything else is a
+bug and prints its traceback.
 """
 
 from __future__ import annotations
@@ -15,6 +15,8 @@ import sys
 import traceback
 from pathlib import Path
 
+from gpl_dist.errors import UsageError
+
 #: An error line is cut here (a value given on the command line can be arbitrarily long).
 MAX_MESSAGE_CHARS = 600
 
@@ -24,7 +26,7 @@ def parse_overrides(pairs: list[str]) -> dict[str, str]:
     out = {}
     for pair in pairs:
         if "=" not in pair:
-            raise ValueError(f"--set takes KEY=VALUE (e.g. training.num_rounds=3), got '{pair}'")
+            raise UsageError(f"--set takes KEY=VALUE (e.g. training.num_rounds=3), got '{pair[:80]}'")
         key, value = pair.split("=", 1)
         out[key.strip()] = value
     return out
@@ -60,7 +62,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     config_path = args.config
     if config_path is None:
         if not args.resume:
-            raise ValueError("--config is required (unless --resume, which reuses RUN_DIR/config.yaml)")
+            raise UsageError("--config is required (unless --resume, which reuses RUN_DIR/config.yaml)")
         config_path = Path(args.run_dir) / "config.yaml"
     cfg = load_config(config_path, overrides)
     result = run_training(cfg, args.run_dir, serial=args.serial, address=args.address, resume=args.resume,
@@ -75,7 +77,6 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
-    from gpl_dist.errors import UsageError
 
     if text is None:
         return None
@@ -107,7 +108,6 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 def cmd_render(args: argparse.Namespace) -> int:
     """``gpl-dist render``: a task's start state as PNG, or an attempt as GIF."""
-    from gpl_dist.errors import UsageError
     from gpl_dist.rendering import attempt_frames, parse_actions, write_picture
 
     if args.seed < 0:
@@ -137,26 +137,39 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_report(report) -> None:
+    _print_problems(report)
+    quarantined = f", quarantined rounds {list(report.quarantined)}" if report.quarantined else ""
+    print(f"checked {report.num_files} committed files ({report.num_bytes / 2**20:.1f} MiB) of rounds "
+          f"{list(report.rounds)}{quarantined}: {len(report.problems)} problem(s)")
+    for r in report.in_progress:
+        print(f"round {r}: a commit in progress (a driver stopped mid-commit); train --resume or clean finishes it")
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
     """``gpl-dist verify``: check every committed file; ``--quarantine`` sets bad rounds aside."""
     from storage.lease import Lease
     from storage.verify import quarantine_round, verify_buffer
 
     root = _buffer_root(args.run_dir)
-    report = verify_buffer(root)
-    _print_problems(report)
-    quarantined = f", quarantined rounds {list(report.quarantined)}" if report.quarantined else ""
-    print(f"checked {report.num_files} committed files ({report.num_bytes / 2**20:.1f} MiB) of rounds "
-          f"{list(report.rounds)}{quarantined}: {len(report.problems)} problem(s)")
-    if report.ok:
-        return 0
-    if args.quarantine:
-        with Lease(root, "gpl-dist verify --quarantine"):
+    if not args.quarantine:
+        report = verify_buffer(root)
+        _print_report(report)
+    else:
+        with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
+            report = verify_buffer(root)
+            _print_report(report)
             for r in report.bad_rounds:
                 moved = quarantine_round(root, r)
                 what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
                 print(f"quarantined round {r}: {what} under quarantine/")
-        print("resume with: gpl-dist train --run-dir RUN_DIR --resume (rounds after the last checkpoint are collected again)")
+            if report.bad_rounds:
+                report = verify_buffer(root)
+                _print_report(report)
+        if report.ok:
+            print(f"resume with: gpl-dist train --run-dir {args.run_dir} --resume "
+                  "(rounds after the last checkpoint are collected again)")
+    if report.ok:
         return 0
     print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
           "(set them aside with --quarantine; see docs/buffer.md, Recovering)", file=sys.stderr)
@@ -174,7 +187,7 @@ def cmd_clean(args: argparse.Namespace) -> int:
     for path in removed:
         print(f"{verb} {path}")
     print(f"{verb} {len(removed)} leftover(s)")
-    unlisted = [p for p in verify_buffer(root, checksums=False).problems if p.path.startswith("data/")]
+    unlisted = [p for p in verify_buffer(root, checksums=False).problems if p.kind == "unlisted"]
     if unlisted:
         print(f"kept {len(unlisted)} path(s) under data/ that no manifest lists (clean never removes committed "
               f"data); see gpl-dist verify {args.run_dir}")
@@ -254,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return args.func(args)
-    except (UserError, ValueError, OSError) as err:  # OSError: paths, permissions, names too long
+    except (UserError, OSError) as err:  # OSError: the user's paths, permissions, names too long
         if args.verbose:
             traceback.print_exc()
         message = " ".join(str(err).split())  # one line, whatever the message held

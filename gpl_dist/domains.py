@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 
+from gpl_dist.errors import UsageError
 from gpl_dist.roles import DomainSpec
 
 #: Built-in domains: name -> module whose import registers its ``DOMAIN``.
@@ -60,7 +61,7 @@ def get_domain(name: str) -> DomainSpec:
     if name not in _REGISTERED and name in BUILTIN_DOMAINS:
         register_domain(importlib.import_module(BUILTIN_DOMAINS[name]).DOMAIN)
     if name not in _REGISTERED:
-        raise ValueError(f"unknown domain '{name}' (known: {', '.join(domain_names())})")
+        raise UsageError(f"unknown domain '{name}' (known: {', '.join(domain_names())})")
     return _REGISTERED[name]
 
 

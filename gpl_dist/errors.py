@@ -19,5 +19,6 @@ class RunDirError(UserError):
     """A run directory or buffer is not what the command needs: not a run, already a run, or in use."""
 
 
-class UsageError(UserError):
-    """A command-line argument is out of range or malformed."""
+class UsageError(UserError, ValueError):
+    """An argument is out of range or malformed, or names something that does not exist (a domain,
+    split, task, expert or correction kind). Also a ``ValueError``, for callers of the library."""

@@ -13,6 +13,7 @@ import numpy as np
 from PIL import Image
 
 from gpl_dist.domains import get_domain
+from gpl_dist.errors import UsageError
 
 
 def parse_actions(text: str) -> list[int]:
@@ -24,12 +25,12 @@ def parse_actions(text: str) -> list[int]:
     try:
         raw = p.read_text() if p.is_file() else text
     except UnicodeDecodeError:
-        raise ValueError(f"actions file {text[:200]} is not text") from None
+        raise UsageError(f"actions file {text[:200]} is not text") from None
     parts = raw.replace(",", " ").split()
     try:
         return [int(x) for x in parts]
     except ValueError:
-        raise ValueError(f"actions must be integers separated by commas or spaces, got {raw[:60]!r}") from None
+        raise UsageError(f"actions must be integers separated by commas or spaces, got {raw[:60]!r}") from None
 
 
 def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None = None, expert: bool = False,
@@ -50,7 +51,7 @@ def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None
     for t in range(steps if expert else min(len(planned), steps)):
         a = policy.act(env) if policy is not None else int(planned[t])
         if not 0 <= a < domain.num_actions:
-            raise ValueError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
+            raise UsageError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
         _, _, _, _, info = env.step(a)
         frames.append(np.asarray(env.render()))
         if expert and info.get("success"):

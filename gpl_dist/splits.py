@@ -11,6 +11,8 @@ import json
 from functools import lru_cache
 from pathlib import Path
 
+from gpl_dist.errors import UsageError
+
 _DIR = Path(__file__).with_name("splits")
 
 
@@ -37,7 +39,7 @@ def split_tasks(domain: str, split: str) -> tuple[int, ...]:
     """Task ids of ``split`` in ``domain``; an unknown split name fails naming the known ones."""
     splits = load_splits(domain)
     if split not in splits:
-        raise ValueError(f"unknown split '{split}' for {domain} (known: {', '.join(sorted(splits))})")
+        raise UsageError(f"unknown split '{split}' for {domain} (known: {', '.join(sorted(splits))})")
     return splits[split]
 
 

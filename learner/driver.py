@@ -28,7 +28,7 @@ import torch
 
 from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_dict, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.errors import RunDirError, UsageError
+from gpl_dist.errors import RunDirError
 from gpl_dist.metrics import completion_by_corrections
 from gpl_dist.models.gpl import build_model_from_config
 from gpl_dist.records import WorkUnit
@@ -163,8 +163,8 @@ class _Progress:
 
 def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
     """Checks that need more than the config itself (the device, the task list, a cluster's
-    address); returns the tasks. Runs before anything is written, so a run that cannot start
-    leaves no trace."""
+    address); returns the tasks. Runs before anything is written: a run that fails them leaves
+    no trace."""
     resolve_device(cfg.training.device)
     if address:
         from workers.ray_pool import check_reachable  # Ray is imported only where a run uses it
@@ -197,7 +197,7 @@ def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path) -> None
     """Finish a half-done commit, then check every committed file before any new work."""
     recover_pending(root)
     report = verify_buffer(root)
-    hint = f"nothing was changed; see `gpl-dist verify {run_dir}` and docs/buffer.md (Recovering)"
+    hint = f"no new work was started; see `gpl-dist verify {run_dir}` and docs/buffer.md (Recovering)"
     report.raise_if_bad(hint)
     if ckpt is not None:
         have = set(report.rounds) | set(report.quarantined)
@@ -209,9 +209,8 @@ def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path) -> None
 
 def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> None:
     """What ``--resume`` must refuse before any work: a run whose latest checkpoint is gone while
-    it has trained rounds (starting over would overwrite them), a change of the domain or of the
-    model (the checkpoint would not fit, or would silently become another method), and a round
-    count the run has already reached."""
+    it has trained rounds (starting over would overwrite them), and a change of the domain or of
+    the model (the checkpoint would not fit, or would silently become another method)."""
     if ckpt is None:
         trained = sorted((run_dir / "checkpoints").glob("round-*.pt"))
         metrics = run_dir / "metrics.jsonl"
@@ -228,9 +227,6 @@ def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> N
     if changed:
         raise ConfigError(f"--resume cannot change {', '.join(changed)}: the checkpoint was trained so; "
                           "start a new run for another domain or model")
-    if ckpt.round_index + 1 >= cfg.training.num_rounds:
-        raise UsageError(f"{run_dir} has finished {ckpt.round_index + 1} rounds and training.num_rounds is "
-                         f"{cfg.training.num_rounds}: nothing to do (set training.num_rounds higher to go on)")
 
 
 def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, address: str | None = None,
@@ -238,25 +234,37 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     """Meta-train ``cfg`` into ``run_dir`` (Algorithm 1), serially or on Ray.
 
     Holds the run dir's and the buffer's leases throughout: a second driver or a ``clean`` of the
-    same run is refused. Nothing is written before the config, the device and (with ``resume``)
-    the checkpoint and every committed file have been checked.
+    same run is refused. Nothing but the leases' lock files is written before the config, the
+    device, the cluster's address and (with ``resume``) the checkpoint and every committed file
+    have been checked; a resumed run that has reached ``training.num_rounds`` changes nothing.
     """
     run_dir = Path(run_dir)
     tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST
     if not resume:
-        check_fresh(run_dir, root)
+        check_fresh(run_dir, root)  # before the leases create anything
     with ExitStack() as held:
         held.enter_context(Lease(run_dir, "gpl-dist train"))
-        if resolve(root).url != resolve(run_dir).url:
+        if not _same_location(root, run_dir):
             held.enter_context(Lease(root, "gpl-dist train"))
+        if not resume:
+            check_fresh(run_dir, root)  # again, now that no other driver can start one meanwhile
         ckpt = load_checkpoint(ckpt_path) if resume and ckpt_path.exists() else None
         if resume:
             check_resumable(cfg, run_dir, ckpt)
+            if ckpt is not None and ckpt.round_index + 1 >= cfg.training.num_rounds:
+                print(f"{run_dir} has finished {ckpt.round_index + 1} rounds (training.num_rounds is "
+                      f"{cfg.training.num_rounds}): nothing to do", flush=True)
+                return TrainingResult(run_dir, tuple(RoundMetrics.from_dict(m) for m in ckpt.history))
             verify_for_resume(root, ckpt, run_dir)
         return _train(cfg, run_dir, root, tasks, ckpt, serial=serial, address=address, progress=progress,
                       collector=collector)
+
+
+def _same_location(a: str | Path, b: str | Path) -> bool:
+    la, lb = resolve(str(a)), resolve(str(b))
+    return type(la.fs) is type(lb.fs) and la.root.rstrip("/") == lb.root.rstrip("/")
 
 
 def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None, *,

@@ -13,6 +13,7 @@ checkpoint are used; any other setting gets its own name (``eval-greedy.json``,
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import time
@@ -66,6 +67,8 @@ def evaluate_policy(cfg: RunConfig, model: GPLPolicy, *, num_corrections: int, s
     tasks = tasks or split_tasks(domain.name, split)
     if max_tasks:
         tasks = tasks[:max_tasks]
+    if any(p.device.type != "cpu" for p in model.parameters()):
+        model = copy.deepcopy(model).cpu()  # rollouts run on the CPU, beside the envs
     rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
                       end_aligned=cfg.model.trajectory_ends_at_last_state,
                       full_information=cfg.model.variant == "full_information")
@@ -74,23 +77,30 @@ def evaluate_policy(cfg: RunConfig, model: GPLPolicy, *, num_corrections: int, s
     start = time.perf_counter()
     max_attempts = num_corrections + 1 if model.uses_corrections else 1
     curves, successes = [], []
-    for seed in seeds:
-        attempts: list = []
-        for s in range(0, len(tasks), chunk):
-            attempts += rollout.run(tasks[s:s + chunk], num_corrections, derive_seed(seed, 0xE7A1), split=split,
-                                    policy_version=0).attempts
-        curves.append(completion_by_attempt(attempts, max_attempts))
-        succ: dict[int, np.ndarray] = {}
-        for a in attempts:
-            succ.setdefault(a.task_id, np.zeros(max_attempts, dtype=bool))
-            if a.success:
-                succ[a.task_id][a.attempt_index:] = True
-        successes.append(np.mean(list(succ.values()), axis=0))
-    model.train(was_training)
+    try:
+        for seed in seeds:
+            attempts: list = []
+            for s in range(0, len(tasks), chunk):
+                attempts += rollout.run(tasks[s:s + chunk], num_corrections, derive_seed(seed, 0xE7A1), split=split,
+                                        policy_version=0).attempts
+            curves.append(completion_by_attempt(attempts, max_attempts))
+            successes.append(_success_by_attempt(attempts, max_attempts))
+    finally:
+        model.train(was_training)
     curves_arr = np.array(curves)
     return EvalResult(completion=curves_arr.mean(0).tolist(), completion_std=curves_arr.std(0).tolist(),
                       success=np.mean(successes, axis=0).tolist(), per_seed=curves_arr.tolist(),
                       num_tasks=len(tasks), seconds=time.perf_counter() - start)
+
+
+def _success_by_attempt(attempts: list, max_attempts: int) -> np.ndarray:
+    """Fraction of the tasks solved after 0..max_attempts-1 corrections (a solved task stays solved)."""
+    solved: dict[int, np.ndarray] = {}
+    for a in attempts:
+        solved.setdefault(a.task_id, np.zeros(max_attempts, dtype=bool))
+        if a.success:
+            solved[a.task_id][a.attempt_index:] = True
+    return np.mean(list(solved.values()), axis=0)
 
 
 def format_table(domain: str, result: EvalResult, with_paper: bool = True) -> str:

@@ -37,7 +37,15 @@ from storage.layout import (
     pending_path,
     staging_unit_dir,
 )
-from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest, mark_buffer
+from storage.manifest import (
+    RoundManifest,
+    ShardFile,
+    ShardRecord,
+    committed_rounds,
+    load_manifest,
+    mark_buffer,
+    parse_manifest,
+)
 
 
 def _committed_file_path(rec: ShardRecord, f: ShardFile) -> str:
@@ -137,6 +145,14 @@ def load_journal(loc: Location, name: str) -> dict[str, Any]:
         if not ok:
             raise BufferIntegrityError(f"commit journal {rel} in {loc.url} has a move outside staging/ -> data/: "
                                        f"{str(move)[:120]}", rel)
+    dirs = journal.get("staging_dirs", [])
+    if not isinstance(dirs, list) or not all(isinstance(d, str) and _inside(d, STAGING) for d in dirs):
+        raise BufferIntegrityError(f"commit journal {rel} in {loc.url} names staging directories outside staging/", rel)
+    r = parse_pending_name(name)
+    try:
+        parse_manifest(json.dumps(journal["manifest"]), -1 if r is None else r)
+    except ValueError as err:
+        raise BufferIntegrityError(f"commit journal {rel} in {loc.url} holds a manifest that {err}", rel) from None
     return journal
 
 
@@ -155,9 +171,10 @@ def recover_pending(root: "str | Location") -> list[int]:
     loc = resolve(root)
     done = []
     for name in pending_journals(loc):
-        _roll_forward(loc, load_journal(loc, name))
-        done.append(parse_pending_name(name))
-    return [r for r in done if r is not None]
+        journal = load_journal(loc, name)
+        _roll_forward(loc, journal)
+        done.append(int(journal["manifest"]["round_index"]))
+    return done
 
 
 def commit_round(

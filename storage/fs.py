@@ -42,7 +42,15 @@ class Location:
         return isinstance(self.fs, LocalFileSystem)
 
     def path(self, rel: str) -> str:
-        return posixpath.join(self.root, rel) if rel else self.root
+        """The full path of ``rel``; ``BufferIntegrityError`` for a path that would leave the root
+        (absolute, or with ``..``: manifests and journals are files a person can edit)."""
+        if not rel:
+            return self.root
+        if rel.startswith("/") or ".." in rel.split("/"):
+            from storage.errors import BufferIntegrityError
+
+            raise BufferIntegrityError(f"{rel[:200]!r} is not a path inside {self.url}", rel)
+        return posixpath.join(self.root, rel)
 
     def rel(self, path: str) -> str:
         path = path.rstrip("/")

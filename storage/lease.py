@@ -21,6 +21,7 @@ Both names start with ``_``, so pyarrow datasets and ``clean`` ignore them.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import socket
 import threading
@@ -33,6 +34,10 @@ from storage.fs import Location, resolve
 
 LEASE_FILE = "_lease.json"
 LOCK_FILE = "_lease.lock"
+#: Tries (50 ms apart) to take a local lock before reporting it held.
+LOCK_TRIES = 5
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -102,7 +107,12 @@ class Lease:
                 raise RunDirError(f"{loc.url} is in use by {other.describe()}")
         self._holder = LeaseHolder(self.command, os.getpid(), socket.gethostname(),
                                    datetime.now(timezone.utc).isoformat(timespec="seconds"), time.time())
-        self._write_holder()
+        try:
+            self._write_holder()
+        except BaseException:
+            self._holder = None
+            self._unlock()
+            raise
         if not loc.is_local:
             self._thread = threading.Thread(target=self._beat, name="lease-heartbeat", daemon=True)
             self._thread.start()
@@ -114,14 +124,19 @@ class Lease:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
-        self.location.remove(LEASE_FILE)
+        try:
+            self.location.remove(LEASE_FILE)
+        finally:
+            self._unlock()
+            self._holder = None
+
+    def _unlock(self) -> None:
         if self._fd is not None:
             import fcntl
 
             fcntl.flock(self._fd, fcntl.LOCK_UN)
             os.close(self._fd)
             self._fd = None
-        self._holder = None
 
     def __enter__(self) -> "Lease":
         return self.acquire()
@@ -132,14 +147,18 @@ class Lease:
     def _lock_local(self) -> None:
         import fcntl
 
-        fd = os.open(self.location.path(LOCK_FILE), os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            other = _read_holder(self.location)
-            who = other.describe() if other else "another process"
-            raise RunDirError(f"{self.location.url} is in use by {who}") from None
+        fd = os.open(self.location.path(LOCK_FILE), os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o644)
+        for attempt in range(LOCK_TRIES):  # a `lease_holder` probe holds the lock for an instant
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if attempt == LOCK_TRIES - 1:
+                    os.close(fd)
+                    other = _read_holder(self.location)
+                    who = other.describe() if other else "another process"
+                    raise RunDirError(f"{self.location.url} is in use by {who}") from None
+                time.sleep(0.05)
         self._fd = fd
 
     def _write_holder(self) -> None:
@@ -148,9 +167,13 @@ class Lease:
 
     def _beat(self) -> None:
         while not self._stop.wait(self.HEARTBEAT_S):
-            if self._holder is not None:
-                self._holder = LeaseHolder(**{**asdict(self._holder), "heartbeat": time.time()})
+            if self._holder is None:
+                continue
+            self._holder = LeaseHolder(**{**asdict(self._holder), "heartbeat": time.time()})
+            try:
                 self._write_holder()
+            except Exception as err:  # noqa: BLE001 - a store's hiccup must not end the heartbeat
+                log.warning("lease heartbeat of %s failed (%s); retrying", self.location.url, err)
 
 
 def lease_holder(root: "str | os.PathLike[str] | Location") -> LeaseHolder | None:
@@ -162,7 +185,7 @@ def lease_holder(root: "str | os.PathLike[str] | Location") -> LeaseHolder | Non
         path = loc.path(LOCK_FILE)
         if not os.path.exists(path):
             return None
-        fd = os.open(path, os.O_RDWR)
+        fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -175,7 +175,7 @@ def test_quarantined_round_after_the_last_checkpoint_is_collected_again(run_copy
     assert main(["verify", str(run_copy), "--quarantine"]) == 0
     assert "quarantined round 1" in capsys.readouterr().out
     assert not (run_copy / "buffer/manifests/round-000001.json").exists()
-    assert (run_copy / "buffer/quarantine/round-000001/manifests/round-000001.json").exists()
+    assert list((run_copy / "buffer/quarantine/round-000001").glob("*/manifests/round-000001.json"))
     assert main(["verify", str(run_copy)]) == 0
     assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress"]) == 0
     assert (run_copy / "buffer/manifests/round-000001.json").exists()
@@ -401,13 +401,15 @@ def test_resume_without_latest_checkpoint_never_starts_over(run_copy, capsys):
     assert _snapshot(run_copy) == before
 
 
-def test_resume_refuses_another_model_or_domain_and_a_reached_round_count(run_copy, capsys):
+def test_resume_refuses_another_model_or_domain_and_does_nothing_once_finished(run_copy, capsys):
     before = _snapshot(run_copy)
     for override, needle in [("model.variant=instruction_only", "--resume cannot change model.variant (gpl -> instruction_only)"),
-                             ("model.embedding_dim=8", "model.embedding_dim (16 -> 8)"),
-                             ("training.num_rounds=2", "has finished 2 rounds and training.num_rounds is 2")]:
+                             ("model.embedding_dim=8", "model.embedding_dim (16 -> 8)")]:
         assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress", "--set", override]) == 2
         _one_line_error(capsys, needle)
+    # a resubmitted job of a finished run: nothing to do, exit 0, nothing rewritten
+    assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress"]) == 0
+    assert "has finished 2 rounds (training.num_rounds is 2): nothing to do" in capsys.readouterr().out
     assert _snapshot(run_copy) == before
 
 
@@ -488,3 +490,54 @@ def test_config_text_mistakes_are_named(tmp_path, capsys):
         err = _one_line_error(capsys, needle)
         assert len(err) < 1000
     assert not (tmp_path / "run").exists()
+
+
+def test_a_commit_in_progress_is_not_corruption_and_is_finished_not_quarantined(run_copy, capsys):
+    """A driver killed after the first move of a commit: data of the round is in data/, the manifest
+    is not written yet, the journal is sound. verify says so and does not call it a problem."""
+    import json
+
+    root = run_copy / "buffer"
+    manifest = root / "manifests" / "round-000001.json"
+    entry = json.loads(manifest.read_text())
+    moved = [f["path"] for s in entry["shards"] for f in s["files"]]
+    moves = [[f"staging/round-000001/unit-00000/try-x/{i}", dst, (root / dst).stat().st_size] for i, dst in enumerate(moved)]
+    (root / "manifests" / "_pending-round-000001.json").write_text(json.dumps(
+        {"manifest": entry, "moves": moves, "staging_dirs": ["staging/round-000001/unit-00000/try-x"]}))
+    manifest.unlink()
+    assert main(["verify", str(run_copy)]) == 0
+    out = capsys.readouterr().out
+    assert "0 problem(s)" in out and "round 1: a commit in progress" in out
+    assert main(["verify", str(run_copy), "--quarantine"]) == 0
+    assert not (root / "quarantine").exists()
+    assert main(["clean", str(run_copy)]) == 0  # rolls the commit forward
+    assert manifest.exists() and not (root / "manifests" / "_pending-round-000001.json").exists()
+    assert main(["verify", str(run_copy)]) == 0
+
+
+def test_quarantining_a_round_twice_keeps_both_copies(run_copy, capsys):
+    from storage.verify import quarantine_round
+
+    root = run_copy / "buffer"
+    first = quarantine_round(root, 1)
+    (root / "manifests" / "round-000001.json").write_text("{}")  # something of round 1 again, then set aside again
+    second = quarantine_round(root, 1)
+    assert "manifests/round-000001.json" in first and second == ["manifests/round-000001.json"]
+    copies = sorted((root / "quarantine" / "round-000001").iterdir())
+    assert len(copies) == 2 and all((c / "manifests" / "round-000001.json").exists() for c in copies)
+
+
+def test_paths_in_manifests_cannot_leave_the_buffer(run_copy, tmp_path, capsys):
+    import json
+
+    outside = tmp_path / "outside.bin"
+    outside.write_bytes(b"secret")
+    manifest = run_copy / "buffer" / "manifests" / "round-000001.json"
+    entry = json.loads(manifest.read_text())
+    entry["shards"][0]["files"][0]["path"] = "../../outside.bin"
+    manifest.write_text(json.dumps(entry))
+    assert main(["verify", str(run_copy)]) == 2
+    assert "BAD  ../../outside.bin: is not a path inside the buffer" in capsys.readouterr().out
+    assert main(["inspect", str(run_copy)]) == 2
+    _one_line_error(capsys, "is not a path inside")
+    assert outside.read_bytes() == b"secret"

@@ -30,7 +30,7 @@ from contextlib import contextmanager
 import ray
 from ray.exceptions import RayActorError, RayTaskError
 
-from gpl_dist.errors import UsageError
+from gpl_dist.errors import UsageError, UserError
 from gpl_dist.records import WorkUnit
 from workers.pool import UnitResult, make_worker, run_unit
 from workers.rollout import RolloutSettings
@@ -38,7 +38,7 @@ from workers.rollout import RolloutSettings
 log = logging.getLogger(__name__)
 
 
-class RoundFailed(RuntimeError):
+class RoundFailed(UserError, RuntimeError):
     """A work unit failed more often than ``max_unit_retries``, or no rollout actor was usable."""
 
 
@@ -120,7 +120,7 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
         return False
     if address:
         check_reachable(address)
-        ray.init(address=address, log_to_driver=True, **kwargs)
+        ray.init(address=address, **{"log_to_driver": True, **kwargs})
         return False
     with _loopback_only():
         ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,

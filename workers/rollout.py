@@ -16,7 +16,6 @@ class runs in one process (``--serial``, tests; ``workers.pool``) and inside a R
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -34,7 +33,6 @@ from gpl_dist.records import Attempt, WorkUnit
 from gpl_dist.roles import DomainSpec
 from workers.loop import Rollout, TaskFailure, sample_actions  # noqa: F401 - re-exported
 
-log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RolloutSettings:

@@ -8,17 +8,13 @@ Each domain declares its kinds and its oracle factory in its ``DomainSpec`` (``g
 from __future__ import annotations
 
 from gpl_dist.domains import get_domain
+from gpl_dist.errors import UsageError
 from gpl_dist.roles import CorrectionOracle
-
-
-def correction_kinds(domain: str) -> tuple[str, ...]:
-    """The correction kinds ``make_corrector(domain, kind)`` accepts (``default`` is the paper's oracle)."""
-    return get_domain(domain).correction_kinds
 
 
 def make_corrector(domain: str, kind: str = "default") -> CorrectionOracle:
     """Correction oracle of ``domain``; ``kind`` picks the variant (``default`` = the paper's)."""
     spec = get_domain(domain)
     if kind not in spec.correction_kinds:
-        raise ValueError(f"unknown {domain} correction kind '{kind}' (known: {', '.join(spec.correction_kinds)})")
+        raise UsageError(f"unknown {domain} correction kind '{kind}' (known: {', '.join(spec.correction_kinds)})")
     return spec.make_corrector(kind)

@@ -28,6 +28,8 @@ from functools import lru_cache
 
 import numpy as np
 
+from gpl_dist.errors import UsageError
+
 SIZE = 19
 PAD = 3  # half the 7x7 view; the padded grids are (SIZE + 2*PAD)^2
 VIEW = 7
@@ -238,9 +240,9 @@ class MultiRoomTask:
 def check_task_id(task_id) -> int:
     """``task_id`` as an int; ``ValueError`` unless it is one of the domain's tasks."""
     if isinstance(task_id, (bool, np.bool_)) or not isinstance(task_id, (int, np.integer)):
-        raise ValueError(f"multiroom task_id must be an int in 0..{NUM_TASKS - 1}, got {task_id!r}")
+        raise UsageError(f"multiroom task_id must be an int in 0..{NUM_TASKS - 1}, got {task_id!r}")
     if not 0 <= int(task_id) < NUM_TASKS:
-        raise ValueError(f"multiroom task_id must be in 0..{NUM_TASKS - 1}, got {task_id}")
+        raise UsageError(f"multiroom task_id must be in 0..{NUM_TASKS - 1}, got {task_id}")
     return int(task_id)
 
 

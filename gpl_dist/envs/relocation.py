@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium import spaces
 
 from gpl_dist.envs.modes import check_modes
+from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec, lazy
@@ -142,9 +143,9 @@ class RelocationTask:
 
 def _check_task_id(task_id: Any) -> int:
     if isinstance(task_id, bool) or not isinstance(task_id, (int, np.integer)):
-        raise ValueError(f"relocation task_id must be an int in 0..{NUM_TASKS - 1}, got {task_id!r}")
+        raise UsageError(f"relocation task_id must be an int in 0..{NUM_TASKS - 1}, got {task_id!r}")
     if not 0 <= int(task_id) < NUM_TASKS:
-        raise ValueError(f"relocation task_id must be in 0..{NUM_TASKS - 1}, got {int(task_id)}")
+        raise UsageError(f"relocation task_id must be in 0..{NUM_TASKS - 1}, got {int(task_id)}")
     return int(task_id)
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 from typing import Any
 
 from gpl_dist.domains import get_domain
+from gpl_dist.errors import UsageError
 from gpl_dist.roles import Expert
 
 
@@ -25,7 +26,7 @@ def check_expert_kind(domain: str, kind: str) -> None:
     """Raise ``ValueError`` naming the known kinds unless ``domain`` has an expert of ``kind``."""
     kinds = expert_kinds(domain)
     if kind not in kinds:
-        raise ValueError(f"unknown expert '{kind}' for {domain} (known: {', '.join(kinds)})")
+        raise UsageError(f"unknown expert '{kind}' for {domain} (known: {', '.join(kinds)})")
 
 
 def domain_of(env: Any) -> str:

@@ -52,8 +52,7 @@ planners assume it is zero.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -235,8 +234,7 @@ def gripper_field(goal: tuple[float, float], blocks: np.ndarray) -> LazyField:
     return LazyField(free, (gi, gj), _GNX, _GNY)
 
 
-@dataclass(frozen=True)
-class _Snapshot:
+class _Snapshot(NamedTuple):
     """What the expert reads of the state: gripper pose ``(gx, gy, th)`` with ``c, s = cos, sin(th)``
     and velocity ``(vx, vy)``; the goal block's position and velocity; the target; the block in the
     gripper's frame ``(rx, ry)``, and whether it sits in the U (``in_cradle``) or behind its bar
