@@ -10,7 +10,7 @@
       manifests/_pending-round-000003.json               commit journal (only while committing)
       staging/round-000003/unit-00017/_tmp-<try>/        a writer's try in progress
       staging/round-000003/unit-00017/try-<try>/         a finished, not yet committed try
-      quarantine/round-000003/...                        a round set aside by ``verify --quarantine``
+      quarantine/round-000003/<time>/...                 a round set aside by ``verify --quarantine``
       _gpl-dist-buffer.json                              marks the root as a gpl-dist buffer
       _lease.json, _lease.lock                           who holds the root (``storage.lease``)
 

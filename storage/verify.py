@@ -39,7 +39,7 @@ from storage.layout import (
 )
 from storage.manifest import RoundManifest, parse_manifest
 
-#: Written under ``quarantine/round-R/`` for a round of which nothing was left.
+#: Written under ``quarantine/round-R/<time>/`` for a round of which nothing was left.
 MISSING_NOTE = "MISSING.txt"
 
 
@@ -208,7 +208,7 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
 
 
 def quarantine_round(root: "str | os.PathLike[str] | Location", round_index: int) -> list[str]:
-    """Move round ``round_index``'s manifest, commit journal and data under ``quarantine/round-R/``;
+    """Move round ``round_index``'s manifest, commit journal and data under ``quarantine/round-R/<time>/``;
     returns what moved. A round of which nothing is left is recorded there as missing (an empty
     list is returned), so that it counts as set aside."""
     loc = resolve(root)
