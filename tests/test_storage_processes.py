@@ -122,3 +122,33 @@ def test_two_writer_processes_same_round(tmp_path):
             rows = view.attempt_rows == i
             np.testing.assert_array_equal(view.observations[rows], a.observations)
     assert clean_leftovers(root) == []
+
+
+def test_an_installed_fault_hook_stops_a_commit_between_moves_and_recovery_finishes_it(tmp_path):
+    """``faults.install`` in this process: a commit interrupted after its first move (here by an
+    exception, as a crash would) leaves a sound journal; recovery finishes it exactly once."""
+    from gpl_dist import faults
+    from storage.commit import pending_journals, recover_pending
+
+    class Crash(Exception):
+        pass
+
+    def crash_between_moves(point: str, context) -> None:
+        if point == "commit.between_moves" and context["round"] == 0:
+            raise Crash()
+
+    root = tmp_path / "run"
+    records = _write_units(str(root), 0, [0, 1], "w")
+    faults.install(crash_between_moves)
+    try:
+        try:
+            commit_round(root, 0, records)
+            raise AssertionError("the hook did not stop the commit")
+        except Crash:
+            pass
+    finally:
+        faults.install(None)
+    assert committed_rounds(root) == [] and len(pending_journals(root)) == 1
+    assert recover_pending(root) == [0]
+    assert committed_rounds(root) == [0] and pending_journals(root) == []
+    assert _tuples_in_data(root) == load_manifest(root, 0).num_tuples
