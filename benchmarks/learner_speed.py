@@ -1,40 +1,55 @@
-"""Learner throughput: 5 epochs over 1e6 multi-room tuples loaded from the buffer, beside the same
-model on synthetic in-memory tensors of the same shapes, measured in one run.
+"""Learner throughput: gpl-dist's learner beside a plain eager PyTorch loop, measured in one run.
 
-    python benchmarks/learner_speed.py [--tuples 1000000] [--epochs 5] [--threads 2]
+    python benchmarks/learner_speed.py [--domain multiroom|relocation|both] [--tuples 300000]
+                                       [--epochs 1] [--with-load] [--buffer ROOT]
 
-The buffer is filled once with real rollouts (a freshly initialised policy, expert labels, the
-real correction oracle) by the serial worker, committed as one round, then loaded through
-``BufferReader.load_training_view``. The synthetic side uses random codes within each observation
-channel's range, the same number of attempts and the same history structure, so the two differ
-only in where the arrays came from. Targets (issue): at most 60 s for the 5 epochs from the
-buffer, and at least 0.8x the synthetic rate.
+Both sides train the same network (``GPLPolicy`` as the domain's shipped config builds it) on the
+same in-memory tensors, loaded once from a buffer committed with real rollouts (a freshly
+initialised policy, expert labels, the real correction oracle):
+
+- **plain loop**, the way the authors' code trains: one shuffled pass of batches of 512 states per
+  epoch, every state conditioned on its own copy of its attempt's instruction and earlier
+  (trajectory, correction) pairs, ``torch.optim.Adam`` over the parameter tensors, one process with
+  torch's default threads. No tricks.
+- **gpl-dist**: ``learner.parallel.make_learner`` with the config's ``training`` section
+  (``configs/<domain>.yaml``), training over the committed buffer's view as a run does.
+
+It prints both rates and their ratio (target: gpl-dist >= 2x the plain loop). ``--with-load``
+then trains gpl-dist again beside one busy process (a pure-Python spin loop) and prints the
+slowdown against the run alone (target: at most 2.5x on 2 cores).
 """
 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
-def fill_buffer(root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
-    from gpl_dist.config import CollectionConfig
+
+def load_cfg(domain: str, overrides: dict[str, str]):
+    from gpl_dist.config import load_config
+    return load_config(CONFIGS / f"{domain}.yaml", overrides)
+
+
+def fill_buffer(cfg, root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
+    """Commit one round of at least ``num_tuples`` real labelled tuples at ``root``."""
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+    from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
     from gpl_dist.records import WorkUnit
     from gpl_dist.splits import split_tasks
     from storage import ShardWriter, commit_round
     from workers.rollout import RolloutSettings, RolloutWorker
 
-    d = get_domain("multiroom")
-    settings = RolloutSettings(collection=CollectionConfig(num_corrections=5))
-    worker = RolloutWorker(d, settings, ShardWriter(root, "bench"), "bench-0")
-    worker.set_weights(state_dict_to_numpy(build_model(d, seed=0)), 0)
-    tasks = split_tasks("multiroom", "train") + split_tasks("multiroom", "valid")
+    d = get_domain(cfg.env.domain)
+    worker = RolloutWorker(d, RolloutSettings.of_run(cfg), ShardWriter(root, "bench"), "bench-0")
+    worker.set_weights(state_dict_to_numpy(build_model_from_config(d, cfg.model, seed=0)), 0)
+    tasks = split_tasks(cfg.env.domain, cfg.env.train_split)
     records, collected, u = [], 0, 0
     while collected < num_tuples:
         chunk = tuple(int(tasks[(u * tasks_per_unit + i) % len(tasks)]) for i in range(tasks_per_unit))
@@ -45,73 +60,130 @@ def fill_buffer(root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
     commit_round(root, 0, records)
 
 
-def synthetic_view_like(view):
-    """Random arrays with the view's shapes, codes within each channel's range."""
+def per_state_batch(tv, idx):
+    """What the authors' loop feeds the network: each state with its own conditioning row and its
+    own copies of its attempt's earlier (trajectory, correction) pairs (nothing shared in a batch)."""
+    import torch
+
+    from gpl_dist.models.gpl import Conditioning
+
+    rows = tv.attempt_rows[idx]
+    ctx = tv.context_rows[rows]  # (B, K)
+    valid = ctx >= 0
+    slots = torch.full_like(ctx, -1)
+    slots[valid] = torch.arange(int(valid.sum()))
+    cond = Conditioning(instruction_ids=tv.instruction_ids[rows], trajectories=tv.trajectories[ctx[valid]],
+                        correction_ids=tv.correction_ids[ctx[valid]], slots=slots)
+    return tv.observations[idx], cond, torch.arange(idx.numel()), tv.targets(idx)
+
+
+def plain_loop(cfg, tv, max_steps: int) -> tuple[float, int]:
+    """The plain eager loop over the first ``max_steps`` batches of one shuffled epoch; (seconds, states)."""
+    import torch
+
     from gpl_dist.domains import get_domain
+    from gpl_dist.models.gpl import build_model_from_config
 
-    g = np.random.default_rng(0)
-    highs = np.array(get_domain("multiroom").obs_categories)
-    obs = (g.random(view.observations.shape, dtype=np.float32) * highs).astype(np.uint8)
-    traj = (g.random(view.trajectories.shape, dtype=np.float32) * highs).astype(np.uint8)
+    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=0)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.training.learning_rate)
+    model.train()
+    perm = torch.randperm(tv.num_states, generator=torch.Generator().manual_seed(0))
+    batches = [b for b in perm.split(512) if b.numel() >= 2][:max_steps]
+    t0, seen = time.perf_counter(), 0
+    for idx in batches:
+        obs, cond, rows, targets = per_state_batch(tv, idx)
+        loss = torch.nn.functional.cross_entropy(model(obs, cond, rows), targets)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        seen += idx.numel()
+    return time.perf_counter() - t0, seen
 
-    class Synthetic:
-        observations = obs
-        expert_actions = g.integers(0, 6, view.expert_actions.shape)
-        attempt_rows = view.attempt_rows.copy()
-        instruction_ids = view.instruction_ids.copy()
-        correction_ids = view.correction_ids.copy()
-        context_rows = view.context_rows.copy()
-        trajectories = traj
 
-    return Synthetic
+def gpl_dist_learner(cfg, tv, epochs: int) -> tuple[float, int, int]:
+    """gpl-dist's learner as the config builds it, ``epochs`` epochs; (seconds, states, learners).
+    The learner processes start before the clock does, as they do once per run."""
+    import dataclasses
 
-
-def train(view, epochs: int, batch_size: int, chunk: int, threads: int) -> tuple[float, float]:
-    from gpl_dist.config import TrainingConfig
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model
+    from gpl_dist.models.gpl import build_model_from_config
+    from learner.parallel import make_learner, resolve_num_learners
+
+    tcfg = dataclasses.replace(cfg.training, num_epochs_per_round=epochs)
+    learner = make_learner(build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=0), tcfg)
+    try:
+        t0 = time.perf_counter()
+        stats = learner.train_round(tv)
+        return time.perf_counter() - t0, stats.num_states * epochs, resolve_num_learners(tcfg)
+    finally:
+        learner.close()
+
+
+def _spin(stop) -> None:
+    while not stop.is_set():
+        sum(range(10_000))
+
+
+def bench_domain(domain: str, args) -> None:
+    import torch
+
     from learner.batches import TensorView
-    from learner.trainer import Learner
+    from storage import BufferReader
 
-    cfg = TrainingConfig(num_epochs_per_round=epochs, batch_size=batch_size, states_per_chunk=chunk,
-                         num_threads=threads)
-    learner = Learner(build_model(get_domain("multiroom"), seed=0), cfg)
-    tv = TensorView.from_view(view)
+    cfg = load_cfg(domain, dict(kv.split("=", 1) for kv in args.set))
+    root = args.buffer or str(Path(tempfile.mkdtemp(prefix="gpl-learner-bench-")) / "buffer")
+    if not args.buffer:
+        t0 = time.perf_counter()
+        fill_buffer(cfg, root, args.tuples)
+        print(f"[{domain}] filled a buffer with real rollouts in {time.perf_counter() - t0:.1f} s ({root})", flush=True)
+    from gpl_dist.domains import get_domain
     t0 = time.perf_counter()
-    stats = learner.train_round(tv)
-    return time.perf_counter() - t0, stats.loss
+    view = BufferReader(root).load_training_view(args.tuples, get_domain(domain).trajectory_stride,
+                                                 cfg.model.trajectory_ends_at_last_state)
+    tv = TensorView.from_view(view)
+    print(f"[{domain}] loaded {tv.num_states:,} tuples, {view.num_attempts:,} attempts in "
+          f"{time.perf_counter() - t0:.1f} s", flush=True)
+    threads = torch.get_num_threads()
+    plain_s, plain_n = plain_loop(cfg, tv, args.plain_steps)
+    ours_s, ours_n, learners = gpl_dist_learner(cfg, tv, args.epochs)
+    plain_rate, ours_rate = plain_n / plain_s, ours_n / ours_s
+    t = cfg.training
+    print(f"[{domain}] plain eager loop : {plain_rate:>9,.0f} samples/s  ({plain_n:,} states, batch 512, "
+          f"per-tensor Adam, {threads} threads)")
+    print(f"[{domain}] gpl-dist learner : {ours_rate:>9,.0f} samples/s  ({ours_n:,} states = {args.epochs} epoch(s), "
+          f"batch {t.batch_size}, {learners} learner process(es), states_per_chunk {t.states_per_chunk})")
+    print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x (target >= 2.0)", flush=True)
+    if args.with_load:
+        stop = multiprocessing.Event()
+        busy = multiprocessing.Process(target=_spin, args=(stop,), daemon=True)
+        busy.start()
+        try:
+            loaded_s, loaded_n, _ = gpl_dist_learner(cfg, tv, args.epochs)
+        finally:
+            stop.set()
+            busy.join()
+        loaded_rate = loaded_n / loaded_s
+        print(f"[{domain}] gpl-dist beside one busy process: {loaded_rate:>9,.0f} samples/s; "
+              f"slowdown {ours_rate / loaded_rate:.2f}x (target <= 2.5)", flush=True)
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--tuples", type=int, default=1_000_000)
-    p.add_argument("--epochs", type=int, default=5)
-    p.add_argument("--batch-size", type=int, default=512)
-    p.add_argument("--chunk", type=int, default=16, help="training.states_per_chunk")
-    p.add_argument("--threads", type=int, default=2, help="torch intra-op threads (training.num_threads)")
-    p.add_argument("--buffer", help="reuse an existing buffer root instead of collecting one")
+    p.add_argument("--domain", choices=("multiroom", "relocation", "both"), default="both")
+    p.add_argument("--tuples", type=int, default=300_000, help="tuples to collect and train on per domain")
+    p.add_argument("--epochs", type=int, default=1, help="epochs of gpl-dist's learner")
+    p.add_argument("--plain-steps", type=int, default=150, help="batches of the plain loop")
+    p.add_argument("--with-load", action="store_true", help="also train beside one busy process")
+    p.add_argument("--buffer", help="reuse an existing buffer root (one domain) instead of collecting one")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override the domain config (e.g. training.num_learners=1)")
     args = p.parse_args()
-    from storage import BufferReader
-
-    root = args.buffer or str(Path(tempfile.mkdtemp(prefix="gpl-learner-bench-")) / "buffer")
-    if not args.buffer:
-        t0 = time.perf_counter()
-        fill_buffer(root, args.tuples)
-        print(f"filled buffer with real rollouts in {time.perf_counter() - t0:.1f} s ({root})")
-    t0 = time.perf_counter()
-    view = BufferReader(root).load_training_view(args.tuples, 25)
-    load_s = time.perf_counter() - t0
-    n = view.num_tuples
-    print(f"loaded {n:,} tuples, {view.num_attempts:,} attempts in {load_s:.1f} s", flush=True)
-    buf_s, buf_loss = train(view, args.epochs, args.batch_size, args.chunk, args.threads)
-    syn_s, _ = train(synthetic_view_like(view), args.epochs, args.batch_size, args.chunk, args.threads)
-    total = n * args.epochs
-    print(f"threads {args.threads}, batch {args.batch_size}, states_per_chunk {args.chunk}, {args.epochs} epochs")
-    print(f"from buffer   : {buf_s:7.1f} s  {total / buf_s:>10,.0f} samples/s  "
-          f"(load {load_s:.1f} s; last-epoch loss {buf_loss:.3f})")
-    print(f"synthetic     : {syn_s:7.1f} s  {total / syn_s:>10,.0f} samples/s")
-    print(f"ratio buffer/synthetic: {syn_s / buf_s:.2f}x (target >= 0.8); 5 epochs over 1e6 from the buffer, load "
-          f"included: {(buf_s * 5 / args.epochs + load_s) * 1e6 / n:.1f} s (target <= 60 s)")
+    np.set_printoptions(precision=3)
+    domains = ("multiroom", "relocation") if args.domain == "both" else (args.domain,)
+    if args.buffer and len(domains) > 1:
+        p.error("--buffer holds one domain's data: also pass --domain")
+    for domain in domains:
+        bench_domain(domain, args)
 
 
 if __name__ == "__main__":

@@ -103,7 +103,9 @@ class TrainingConfig:
     device: str = "auto"
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
     num_threads: int = 0
-    """Torch intra-op threads in the learner (0 leaves torch's default)."""
+    """Torch intra-op threads per learner process (0: the available cores shared out among the learners)."""
+    num_learners: int = 1
+    """Data-parallel learner processes on the driver's machine, batch_size split among them (0: one per core)."""
 
 
 @dataclass(frozen=True)
@@ -303,7 +305,8 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),
         (cfg.training.batch_size >= 1, "training.batch_size must be at least 1"),
         (cfg.training.states_per_chunk >= 1, "training.states_per_chunk must be at least 1"),
-        (cfg.training.num_threads >= 0, "training.num_threads must be >= 0 (0 leaves torch's default)"),
+        (cfg.training.num_threads >= 0, "training.num_threads must be >= 0 (0 shares the cores out among the learners)"),
+        (0 <= cfg.training.num_learners <= 64, "training.num_learners must be in 0..64 (0: one per available core)"),
         (0 <= cfg.eval.num_corrections <= MAX_CORRECTIONS,
          f"eval.num_corrections must be in 0..{MAX_CORRECTIONS}, got {cfg.eval.num_corrections}"),
         (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),

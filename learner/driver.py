@@ -35,7 +35,8 @@ from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng, save_checkpoint
-from learner.trainer import Learner, resolve_device
+from learner.parallel import make_learner
+from learner.trainer import resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
 from storage.fs import resolve
 from storage.lease import Lease
@@ -165,7 +166,8 @@ def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
     """Checks that need more than the config itself (the device, the task list, a cluster's
     address); returns the tasks. Runs before anything is written: a run that fails them leaves
     no trace."""
-    resolve_device(cfg.training.device)
+    if not address or cfg.training.device != "cuda":  # a cluster's GPUs are counted once joined
+        resolve_device(cfg.training.device)
     if address:
         from workers.ray_pool import check_reachable  # Ray is imported only where a run uses it
 
@@ -269,28 +271,51 @@ def _same_location(a: str | Path, b: str | Path) -> bool:
 
 def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None, *,
            serial: bool, address: str | None, progress: bool, collector) -> TrainingResult:
-    domain = get_domain(cfg.env.domain)
-    ckpt_dir = run_dir / "checkpoints"
-    run_id = run_dir.name
-    settings = RolloutSettings.of_run(cfg)
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
-    model = build_model_from_config(domain, cfg.model, seed=cfg.seed)
-    learner = Learner(model, cfg.training, seed=cfg.seed)
-    start_round, history = 0, []
+    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=cfg.seed)
     owns_collector = collector is None
-    if ckpt is not None:
-        load_model_state(learner.model, ckpt, ckpt_dir / LATEST)
-        learner.load_optimizer_state(ckpt.optimizer_state)
-        restore_rng(ckpt.rng_state, learner.generator)
-        start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
-        log.info("resuming %s at round %d", run_dir, start_round)
-    if collector is None:  # before anything is written: joining a cluster can fail
-        collector = _make_collector(cfg, settings, root, run_id, serial=serial, address=address)
+    learner = None
+    try:
+        if owns_collector:  # before anything is written: joining a cluster can fail
+            collector = _make_collector(cfg, RolloutSettings.of_run(cfg), root, run_dir.name, serial=serial,
+                                        address=address)
+        learner = _make_learner(cfg, model, on_ray=not serial)
+        start_round, history = 0, []
+        if ckpt is not None:
+            load_model_state(learner.model, ckpt, run_dir / "checkpoints" / LATEST)
+            learner.load_optimizer_state(ckpt.optimizer_state)
+            restore_rng(ckpt.rng_state, learner.generator)
+            start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
+            log.info("resuming %s at round %d", run_dir, start_round)
+        return _train_rounds(cfg, run_dir, root, tasks, learner, collector, start_round, history, progress)
+    finally:
+        if learner is not None:
+            learner.close()
+        if owns_collector and collector is not None:
+            collector.close()
+
+
+def _make_learner(cfg: RunConfig, model, on_ray: bool):
+    """The learner in this process (with its data-parallel helpers), or, on a Ray cluster whose
+    GPU is on another node, a Ray actor there (``learner.remote.placement``)."""
+    if on_ray and cfg.training.device != "cpu" and not torch.cuda.is_available():
+        from learner import remote  # imports Ray: only for a run that uses it
+
+        if remote.placement(cfg.training.device, False, remote.cluster_gpus()) == remote.GPU_ACTOR:
+            log.info("training on a GPU of the Ray cluster (this node has none)")
+            return remote.RemoteLearner(model, cfg.training, seed=cfg.seed)
+    return make_learner(model, cfg.training, seed=cfg.seed)
+
+
+def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], learner, collector,
+                  start_round: int, history: list[RoundMetrics], progress: bool) -> TrainingResult:
+    domain = get_domain(cfg.env.domain)
+    ckpt_dir = run_dir / "checkpoints"
     tb = None
     try:
         save_config(cfg, run_dir / "config.yaml")
-        mark_buffer(root, run_id)
+        mark_buffer(root, run_dir.name)
         round_loop = _RoundLoop(cfg, domain, tasks, learner, collector, root, _Progress(progress))
         tb = _tensorboard(run_dir)
         for r in range(start_round, cfg.training.num_rounds):
@@ -304,8 +329,6 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
     finally:
         if tb is not None:
             tb.close()
-        if owns_collector:
-            collector.close()
     return TrainingResult(run_dir, tuple(history))
 
 
@@ -322,7 +345,7 @@ class _RoundLoop:
     """One DAgger round: collect with the current weights (unless committed before a restart),
     commit, load the training view, train."""
 
-    def __init__(self, cfg: RunConfig, domain, tasks: tuple[int, ...], learner: Learner, collector, root: str,
+    def __init__(self, cfg: RunConfig, domain, tasks: tuple[int, ...], learner, collector, root: str,
                  bars: "_Progress"):
         self.cfg, self.domain, self.tasks, self.learner = cfg, domain, tasks, learner
         self.collector, self.root, self.bars = collector, root, bars

@@ -14,19 +14,29 @@ state) runs once per attempt in the batch. That is most of the cost of a step at
 Adam runs over one flat tensor holding every parameter (``flatten_parameters``). A tensor that
 gets no gradient in a step (the correction module, when a batch holds only first attempts) then
 takes a zero gradient, as in frameworks with dense gradients, where per-tensor Adam would skip it.
+
+Data parallel (``learner.parallel``): with a ``group`` of N learners, every learner walks the same
+epoch order (rank 0's, broadcast) and takes its contiguous slice of each global batch of
+``batch_size`` states; its loss is weighted by its share of the batch, so the one all-reduce (sum)
+of the flat gradient per step gives every learner the gradient of the whole batch, and their
+identical Adam steps keep identical weights. The optimisation is that of one learner with the same
+``batch_size``, up to the order of floating-point sums.
 """
 
 from __future__ import annotations
 
+import copy
+import os
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol
 
 import torch
 from torch import nn
 
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import ConfigError, TrainingConfig
+from gpl_dist.models.gpl import Conditioning
 from learner.batches import TensorView
 
 
@@ -103,15 +113,50 @@ def epoch_order(attempt_rows: torch.Tensor, chunk: int, generator: torch.Generat
     return order[order >= 0]
 
 
-class Learner:
-    """Trains a ``GPLPolicy``; implements ``gpl_dist.roles.Learner``."""
+def available_cpus() -> int:
+    """CPU cores this process may run on (its affinity mask: a container's or ``taskset``'s share)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS has no affinity masks
+        return os.cpu_count() or 1
 
-    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0):
+
+def threads_per_learner(cfg: TrainingConfig) -> int:
+    """``training.num_threads``, or by default the available cores shared out among the learners.
+
+    Never more threads than cores: an intra-op thread that waits on a descheduled sibling is how a
+    learner that shares its cores collapsed (3-35x slower) instead of slowing in proportion.
+    """
+    if cfg.num_threads:
+        return cfg.num_threads
+    return max(1, available_cpus() // max(1, cfg.num_learners or available_cpus()))
+
+
+class Group(Protocol):
+    """The collective operations a data-parallel learner needs (``learner.parallel.ProcessGroup``)."""
+
+    rank: int
+    size: int
+
+    def all_reduce_sum_(self, tensor: torch.Tensor) -> None: ...
+
+    def broadcast_(self, tensor: torch.Tensor) -> None:
+        """Overwrite ``tensor`` with rank 0's."""
+        ...
+
+
+class Learner:
+    """Trains a ``GPLPolicy``; implements ``gpl_dist.roles.Learner``.
+
+    ``group``: the data-parallel learners this one trains with (None alone); see the module doc.
+    """
+
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0, group: Group | None = None):
         self.cfg = cfg
+        self.group = group
         keep_freed_memory()  # the step's MB-sized temporaries would page-fault afresh every step
         self.device = resolve_device(cfg.device)
-        if cfg.num_threads:
-            torch.set_num_threads(cfg.num_threads)
+        torch.set_num_threads(threads_per_learner(cfg))
         self.model = model.to(self.device)
         self.flat_parameters, self.flat_grads = flatten_parameters(self.model)
         # one fused Adam kernel over one tensor: the per-tensor bookkeeping of a 45-tensor step
@@ -123,6 +168,9 @@ class Learner:
         """Adam's moments from a checkpoint (also one written with one entry per parameter tensor,
         before the parameters were flattened: exact when every tensor has taken the same number
         of steps, as they do in gpl-dist's rounds), keeping this learner's fused setting."""
+        # a copy: load_state_dict keeps the given tensors, so two learners loading one in-memory
+        # state would update the same moments twice (a checkpoint read from disk is private anyway)
+        state = copy.deepcopy(state)
         params = state["param_groups"][0]["params"]
         if len(params) > 1:  # per-tensor moments, in model.parameters() order: concatenate them
             per = [state["state"].get(i) for i in params]
@@ -137,6 +185,9 @@ class Learner:
         for group in self.optimizer.param_groups:
             group["fused"], group["foreach"] = True, None
 
+    def close(self) -> None:
+        """Nothing to release (``learner.parallel.DataParallelLearner`` stops its processes)."""
+
     def weights(self) -> dict:
         from gpl_dist.models.gpl import state_dict_to_numpy
         return state_dict_to_numpy(self.model)
@@ -147,20 +198,24 @@ class Learner:
         start = time.perf_counter()
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0
         self.model.train()
+        self._sync_state()
+        rank, size = (0, 1) if self.group is None else (self.group.rank, self.group.size)
         last_conditioning = None
         for epoch in range(self.cfg.num_epochs_per_round):
-            perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
+            perm = self._epoch_order(tv)
             loss_sum, correct, seen = 0.0, 0, 0
             for idx in perm.split(self.cfg.batch_size):
-                if idx.numel() < 2 and n >= 2:
-                    continue  # BatchNorm needs two samples
-                batch = self._gather(tv, idx)
-                loss, hits = self._train_on(*batch)
+                if idx.numel() < 2 * size and n >= 2 * size:
+                    continue  # BatchNorm needs two samples on every learner
+                mine = idx[rank * idx.numel() // size:(rank + 1) * idx.numel() // size]
+                batch = self._gather(tv, mine)
+                loss, hits = self._train_on(*batch, share=mine.numel() / idx.numel())
                 last_conditioning = batch[2]
-                loss_sum += loss * idx.numel()
+                loss_sum += loss * mine.numel()
                 correct += hits
-                seen += idx.numel()
+                seen += mine.numel()
                 steps += 1
+            loss_sum, correct, seen = self._sum_over_learners(loss_sum, correct, seen)
             if on_epoch is not None and seen:
                 on_epoch(epoch, loss_sum / seen, correct / seen)
         self.model.eval()
@@ -179,20 +234,55 @@ class Learner:
             return None
         return float((z - z.mean(0)).norm(dim=1).mean())
 
+    def _epoch_order(self, tv: TensorView) -> torch.Tensor:
+        """This epoch's order of states: rank 0's, on every learner of a group."""
+        if self.group is None or self.group.rank == 0:
+            perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
+        else:
+            perm = torch.empty(tv.num_states, dtype=torch.long)
+        if self.group is not None:
+            self.group.broadcast_(perm)
+        return perm
+
+    def _sum_over_learners(self, loss_sum: float, correct: int, seen: int) -> tuple[float, int, int]:
+        if self.group is None:
+            return loss_sum, correct, seen
+        totals = torch.tensor([loss_sum, correct, seen], dtype=torch.float64)
+        self.group.all_reduce_sum_(totals)
+        return float(totals[0]), int(totals[1]), int(totals[2])
+
+    def _sync_state(self) -> None:
+        """Give every learner of a group rank 0's weights, buffers (BatchNorm statistics) and Adam
+        moments: after a checkpoint was loaded on rank 0, and against any drift."""
+        if self.group is None:
+            return
+        state = self.optimizer.state[self.flat_parameters]
+        if not state:  # a fresh Adam state equals zero moments at step 0
+            state.update(step=torch.zeros((), dtype=torch.float32, device=self.device),
+                         exp_avg=torch.zeros_like(self.flat_parameters),
+                         exp_avg_sq=torch.zeros_like(self.flat_parameters))
+        for tensor in (self.flat_parameters.data, state["exp_avg"], state["exp_avg_sq"], state["step"],
+                       *self.model.buffers()):
+            self.group.broadcast_(tensor)
+
     def step(self, tv: TensorView, idx: torch.Tensor) -> tuple[float, int]:
         """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""
         return self._train_on(*self._gather(tv, idx))
 
-    def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple:
+    def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning,
+                                                                  torch.Tensor, torch.Tensor]:
         """The batch of states ``idx``, on the learner's device."""
         obs, labels, cond, rows = tv.batch(idx)
         dev = self.device
         return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev)
 
-    def _train_on(self, obs, labels, cond, rows, targets) -> tuple[float, int]:
+    def _train_on(self, obs, labels, cond, rows, targets, share: float = 1.0) -> tuple[float, int]:
+        """One step on a batch; ``share`` is this learner's fraction of a group's global batch."""
         logits = self.model(obs, cond, rows)
         loss = nn.functional.cross_entropy(logits, targets)
         self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
-        loss.backward()
+        (loss * share if share != 1.0 else loss).backward()
+        if self.group is not None:
+            self.group.all_reduce_sum_(self.flat_grads)
         self.optimizer.step()
         return float(loss.detach()), int((logits.detach().argmax(1) == labels).sum())

@@ -78,3 +78,18 @@ def test_ray_run_matches_serial_row_counts(tmp_path, ray_cluster):
     assert tuples_per_round(tmp_path / "ray") == tuples_per_round(tmp_path / "serial")
     assert np.allclose([m.completion_by_corrections for m in on_ray.history],
                        [m.completion_by_corrections for m in serial.history])
+
+
+def test_two_learner_processes_train_resume_and_stop(tmp_path):
+    """A run with training.num_learners=2, stopped after round 0 and resumed, trains like one
+    learner (same batches, sums in another order) and leaves no learner process behind."""
+    import multiprocessing
+
+    two = {"training.num_learners": 2, "training.num_threads": 1}
+    run_dir = tmp_path / "two"
+    run_training(tiny(**two, **{"training.num_rounds": 1}), run_dir, serial=True, progress=False)
+    resumed = run_training(tiny(**two), run_dir, serial=True, progress=False, resume=True)
+    one = run_training(tiny(**{"training.num_threads": 1}), tmp_path / "one", serial=True, progress=False)
+    assert tuples_per_round(run_dir) == tuples_per_round(tmp_path / "one")
+    assert np.allclose([m.loss for m in resumed.history], [m.loss for m in one.history], rtol=1e-3)
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("gpl-learner")]

@@ -1,0 +1,131 @@
+"""The learner as a Ray actor on a GPU node, for a run whose driver's node has no GPU.
+
+``placement`` decides where the learner runs (pure logic, tested on any machine); ``RemoteLearner``
+is the driver's handle on a ``LearnerActor`` placed with ``num_gpus=1``. The handle keeps a CPU
+replica of the model, the Adam state and the batch generator's state: every round it sends them
+with the training view (numpy, through Ray's object store), the actor trains and sends the new
+state back. The driver therefore checkpoints, resumes and hands weights to the rollout actors
+(one ``ray.put`` per round, as always) exactly as with a local learner, and a restarted actor
+loses nothing. This module imports Ray: it is only loaded by a run that uses a cluster.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from torch import nn
+
+from gpl_dist.config import ConfigError, TrainingConfig
+
+DRIVER, GPU_ACTOR = "driver", "gpu-actor"
+
+
+def placement(device: str, driver_has_cuda: bool, cluster_gpus: float) -> str:
+    """Where the learner runs: ``DRIVER`` (this process, plus its data-parallel helpers) or
+    ``GPU_ACTOR`` (a Ray actor holding one GPU elsewhere in the cluster).
+
+    ``cpu`` always trains in the driver; ``cuda`` and ``auto`` use the driver's own GPU when it has
+    one, else a cluster GPU; ``cuda`` with no GPU anywhere is a ``ConfigError``, ``auto`` then
+    falls back to the CPU.
+    """
+    if device == "cpu" or driver_has_cuda:
+        return DRIVER
+    if cluster_gpus >= 1:
+        return GPU_ACTOR
+    if device == "cuda":
+        raise ConfigError("training.device is cuda, but neither this machine nor the Ray cluster has a GPU "
+                          "(use training.device=auto or cpu)")
+    return DRIVER
+
+
+def cluster_gpus() -> float:
+    """GPUs in the Ray cluster this process is connected to."""
+    import ray
+    return float(ray.cluster_resources().get("GPU", 0.0))
+
+
+def _cpu(value):
+    """``value`` (a state dict, possibly nested) with every tensor on the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: _cpu(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_cpu(v) for v in value]
+    return value
+
+
+class LearnerActorImpl:
+    """What runs inside the actor: a learner that trains from a state and returns the new one."""
+
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int):
+        from learner.parallel import make_learner
+
+        self.learner = make_learner(model, cfg, seed)
+
+    def train_round(self, state: tuple[dict, dict | None, torch.Tensor], view):
+        model_state, optimizer_state, generator_state = state
+        self.learner.model.load_state_dict(model_state)
+        if optimizer_state is not None:
+            self.learner.load_optimizer_state(optimizer_state)
+        self.learner.generator.set_state(generator_state)
+        stats = self.learner.train_round(view)
+        return stats, (_cpu(self.learner.model.state_dict()), _cpu(self.learner.optimizer.state_dict()),
+                       self.learner.generator.get_state())
+
+    def device(self) -> str:
+        return str(next(self.learner.model.parameters()).device)
+
+
+class _OptimizerState:
+    """Stands in for the optimizer where the driver reads it (checkpoints)."""
+
+    def __init__(self) -> None:
+        self.state: dict | None = None
+
+    def state_dict(self) -> dict:
+        return self.state if self.state is not None else {"state": {}, "param_groups": []}
+
+
+class RemoteLearner:
+    """The driver's handle on a ``LearnerActor``; implements ``gpl_dist.roles.Learner`` and exposes
+    ``model``, ``optimizer`` and ``generator`` as ``learner.trainer.Learner`` does."""
+
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0, num_gpus: float = 1.0):
+        import ray
+
+        self.model = model
+        self.cfg = cfg
+        self.optimizer = _OptimizerState()
+        self.generator = torch.Generator().manual_seed(seed)
+        # num_cpus=0: the rollout actors hold the CPUs (platform notes: the deadlock trap)
+        actor = ray.remote(num_cpus=0, num_gpus=num_gpus, max_restarts=1)(LearnerActorImpl)
+        self._actor: Any = actor.remote(model, cfg, seed)  # type: ignore[attr-defined]  # an ActorClass
+
+    def load_optimizer_state(self, state: dict) -> None:
+        self.optimizer.state = state
+
+    def weights(self) -> dict:
+        from gpl_dist.models.gpl import state_dict_to_numpy
+        return state_dict_to_numpy(self.model)
+
+    def device(self) -> str:
+        import ray
+        return ray.get(self._actor.device.remote())
+
+    def train_round(self, view, on_epoch=None):
+        import ray
+
+        state = (self.model.state_dict(), self.optimizer.state, self.generator.get_state())
+        stats, (model_state, optimizer_state, generator_state) = ray.get(self._actor.train_round.remote(state, view))
+        self.model.load_state_dict(model_state)
+        self.optimizer.state = optimizer_state
+        self.generator.set_state(generator_state)
+        if on_epoch is not None:
+            on_epoch(self.cfg.num_epochs_per_round - 1, stats.loss, stats.accuracy)
+        return stats
+
+    def close(self) -> None:
+        import ray
+        ray.kill(self._actor)
