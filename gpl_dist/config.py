@@ -102,8 +102,8 @@ class TrainingConfig:
     """States of one attempt kept together when shuffling (1 shuffles states independently)."""
     device: str = "auto"
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
-    num_threads: int = 0
-    """Torch intra-op threads per learner process (0: the available cores shared out among the learners)."""
+    num_threads: int = 1
+    """Torch threads per learner process; >1 is ~10 % faster alone but 4x slower beside any busy process (0: cores / learners)."""
     num_learners: int = 1
     """Data-parallel learner processes on the driver's machine, batch_size split among them (0: one per core)."""
 

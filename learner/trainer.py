@@ -122,10 +122,13 @@ def available_cpus() -> int:
 
 
 def threads_per_learner(cfg: TrainingConfig) -> int:
-    """``training.num_threads``, or by default the available cores shared out among the learners.
+    """``training.num_threads``, or with 0 the available cores shared out among the learners.
 
-    Never more threads than cores: an intra-op thread that waits on a descheduled sibling is how a
-    learner that shares its cores collapsed (3-35x slower) instead of slowing in proportion.
+    One by default: with two intra-op threads a learner alone on 2 cores was 10 % faster, but
+    beside one busy process it ran 4x slower (an OpenMP thread spins at every operation's barrier
+    waiting for a descheduled sibling); with one thread it lost 6 %. On a Ray node the learner
+    always shares its cores, so the second core is better spent on a second learner process
+    (``training.num_learners``) than on a second thread. ``benchmarks/learner_speed.py --with-load``.
     """
     if cfg.num_threads:
         return cfg.num_threads

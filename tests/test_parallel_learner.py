@@ -89,10 +89,11 @@ def test_how_many_learners_and_threads():
     assert resolve_num_learners(TrainingConfig(num_learners=0)) == cores
     assert resolve_num_learners(TrainingConfig(num_learners=8, batch_size=6)) == 3  # >= 2 states each
     assert resolve_num_learners(TrainingConfig(num_learners=1)) == 1
-    # threads: never more than the cores, shared out among the learners
-    assert threads_per_learner(TrainingConfig(num_learners=1)) == cores
-    assert threads_per_learner(TrainingConfig(num_learners=0)) == 1
-    assert threads_per_learner(TrainingConfig(num_learners=cores * 2)) == 1
+    # threads: one per learner by default; 0 shares the cores out, never more threads than cores
+    assert threads_per_learner(TrainingConfig()) == 1
+    assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=1)) == cores
+    assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=0)) == 1
+    assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=cores * 2)) == 1
     assert threads_per_learner(TrainingConfig(num_learners=2, num_threads=3)) == 3
     assert isinstance(make_learner(build_model(get_domain("multiroom")), TrainingConfig(num_learners=1)), Learner)
 
