@@ -143,7 +143,10 @@ def bench_domain(domain: str, args) -> None:
     tv = TensorView.from_view(view)
     print(f"[{domain}] loaded {tv.num_states:,} tuples, {view.num_attempts:,} attempts in "
           f"{time.perf_counter() - t0:.1f} s", flush=True)
-    threads = torch.get_num_threads()
+    from learner.trainer import available_cpus
+
+    threads = available_cpus()  # torch's default; a learner run before may have lowered it
+    torch.set_num_threads(threads)
     plain_s, plain_n = plain_loop(cfg, tv, args.plain_steps)
     ours_s, ours_n, learners = gpl_dist_learner(cfg, tv, args.epochs)
     plain_rate, ours_rate = plain_n / plain_s, ours_n / ours_s
