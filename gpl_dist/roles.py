@@ -229,3 +229,7 @@ class Learner(Protocol):
     def weights(self) -> dict[str, np.ndarray]:
         """The current weights as numpy arrays (what workers load)."""
         ...
+
+    def close(self) -> None:
+        """Release what the learner holds (processes, a Ray actor); a no-op for one in-process learner."""
+        ...

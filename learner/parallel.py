@@ -1,19 +1,23 @@
 """Data-parallel learners on one machine: N processes, one torch thread each, one gloo all-reduce
 of the flat gradient per step (``training.num_learners``).
 
-Why processes and not threads: the GPL network is small, so a step is dozens of small kernels and
-Python between them; a second intra-op thread buys almost nothing (40.7k samples/s with 2 threads,
-41.8k with 1), while a second process doubles the work done per step. Each process holds a full
-replica; rank 0 is the driver's own ``Learner`` (it checkpoints and hands out the weights), the
+Why processes and not threads: a learner with two intra-op threads stalls at every operation
+when anything else runs on its cores (a thread waits for a descheduled sibling), and its float
+sums change from run to run; processes of one thread each do neither. They pay an all-reduce per
+step and wait for the slowest, so on few cores they only gain with large batches (docs/results.md,
+Speed). Each process holds a full replica; rank 0 is the driver's own ``Learner`` (it checkpoints and hands out the weights), the
 others are spawned once per run and live until ``close``. Every round the driver copies the
 training view into shared memory once and the helpers map it (no copy per helper), rank 0
 broadcasts weights, BatchNorm statistics and Adam moments, and all learners then walk the same
-epoch order, each its slice of every global batch (``learner.trainer``). The optimisation is that
-of one learner with the same ``batch_size``: changing ``num_learners`` changes only the order of
-floating-point sums.
+epoch order, each its slice of every global batch (``learner.trainer``). Without BatchNorm the
+optimisation is that of one learner with the same ``batch_size`` (``num_learners`` changes only
+the order of floating-point sums); BatchNorm layers normalise each learner's slice by its own
+statistics, as DistributedDataParallel does without SyncBatchNorm, and their running statistics
+are averaged over the learners at the end of each round.
 
-The collective engine is gloo (``torch.distributed.ProcessGroupGloo``), over loopback only, with a
-file store in a private temporary directory: nothing listens beyond this machine. Across nodes, a
+The collective engine is gloo (``torch.distributed.ProcessGroupGloo``) on a device bound to
+127.0.0.1, with a file store in a private temporary directory: nothing listens beyond this machine
+(gloo's loopback port itself has no authentication, like any local service). Across nodes, a
 Ray cluster's learners would go through Ray Train instead (not built yet; see docs/scaling.md).
 """
 
@@ -22,8 +26,10 @@ from __future__ import annotations
 import copy
 import dataclasses
 import os
+import queue
 import shutil
 import tempfile
+import time
 from datetime import timedelta
 from typing import Callable
 
@@ -67,11 +73,14 @@ class ProcessGroup:
     """
 
     def __init__(self, rank: int, size: int, store_dir: str):
-        os.environ.setdefault("GLOO_SOCKET_IFNAME", "lo")  # the connections between learners stay on loopback
         self.rank, self.size = rank, size
         store = dist.FileStore(os.path.join(store_dir, "rendezvous"), size)
         store.set_timeout(RENDEZVOUS_TIMEOUT)
-        self._pg = dist.ProcessGroupGloo(store, rank, size, COLLECTIVE_TIMEOUT)
+        options = dist.ProcessGroupGloo._Options()  # type: ignore[attr-defined]  # missing from torch's stubs
+        options._timeout = COLLECTIVE_TIMEOUT
+        # bound to loopback whatever GLOO_SOCKET_IFNAME says (cluster images often name eth0)
+        options._devices = [dist.ProcessGroupGloo.create_device(hostname="127.0.0.1")]  # type: ignore[attr-defined]
+        self._pg = dist.ProcessGroupGloo(store, rank, size, options)
 
     def all_reduce_sum_(self, tensor: torch.Tensor) -> None:
         self._pg.allreduce([tensor]).wait()  # type: ignore[attr-defined]  # missing from torch's stubs
@@ -81,7 +90,14 @@ class ProcessGroup:
 
 
 def _shared(tv: TensorView) -> TensorView:
-    """A copy of ``tv`` in shared memory: the helpers map it instead of receiving copies."""
+    """A copy of ``tv`` in shared memory: the helpers map it instead of receiving copies. A
+    ``LearnerFailed`` in one line when /dev/shm cannot hold it (containers often give 64 MB)."""
+    need = sum(t.numel() * t.element_size() for t in (getattr(tv, f.name) for f in dataclasses.fields(tv))
+               if t is not None)
+    if os.path.isdir("/dev/shm") and shutil.disk_usage("/dev/shm").free < need:
+        raise LearnerFailed(f"/dev/shm has {shutil.disk_usage('/dev/shm').free / 2**20:.0f} MiB free, the training "
+                            f"view needs {need / 2**20:.0f} MiB in shared memory for the data-parallel learners; "
+                            "give the container more (docker --shm-size) or set training.num_learners=1")
     def share(t: torch.Tensor) -> torch.Tensor:
         return torch.empty_like(t).share_memory_().copy_(t)
     fields = {f.name: getattr(tv, f.name) for f in dataclasses.fields(tv)}
@@ -95,13 +111,15 @@ def _serve(rank: int, size: int, store_dir: str, model: nn.Module, cfg: Training
     while True:
         try:
             view = inbox.get(timeout=HELPER_POLL_SECONDS)
-        except Exception:  # queue.Empty: still idle; leave when the driver died without a word
+        except queue.Empty:  # still idle; leave when the driver died without a word
             if os.getppid() != driver_pid:
                 return
             continue
+        # any other error (a view that cannot arrive) ends this process: rank 0 then fails at once
         if view is None:
             return
         learner.train_round(view)
+        view = None  # free this round's shared memory while idle
 
 
 class DataParallelLearner:
@@ -123,7 +141,7 @@ class DataParallelLearner:
                 self._inboxes.append(inbox)
                 self._procs.append(proc)
             self._local = Learner(model, cfg, seed, group=ProcessGroup(0, num_learners, self._dir))
-        except RuntimeError as exc:  # the rendezvous timed out: say which helper never came
+        except (RuntimeError, dist.DistError) as exc:  # the rendezvous failed: say which helper never came
             codes = {p.name: p.exitcode for p in self._procs if not p.is_alive()}
             self.close()
             raise LearnerFailed(f"data-parallel learners did not start ({exc}); exited: {codes or 'none'} "
@@ -150,9 +168,9 @@ class DataParallelLearner:
         dead = [p.name for p in self._procs if not p.is_alive()]
         if dead:
             raise LearnerFailed(f"learner process(es) {', '.join(dead)} exited; restart the run with --resume")
-        shared = _shared(tv)
+        tv = _shared(tv)  # rank 0 trains on the shared copy too: one copy of the view, not two
         for inbox in self._inboxes:
-            inbox.put(shared)
+            inbox.put(tv)
         try:
             return self._local.train_round(tv, on_epoch)
         except RuntimeError as exc:  # gloo: a peer closed its connection or timed out
@@ -167,8 +185,10 @@ class DataParallelLearner:
                 inbox.put(None)
             except (OSError, ValueError):
                 pass
+        deadline = time.monotonic() + 10
         for proc in self._procs:
-            proc.join(timeout=10)
+            proc.join(timeout=max(0.0, deadline - time.monotonic()))
+        for proc in self._procs:
             if proc.is_alive():
                 proc.terminate()
                 proc.join(timeout=5)

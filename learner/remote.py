@@ -6,7 +6,7 @@ replica of the model, the Adam state and the batch generator's state: every roun
 with the training view (numpy, through Ray's object store), the actor trains and sends the new
 state back. The driver therefore checkpoints, resumes and hands weights to the rollout actors
 (one ``ray.put`` per round, as always) exactly as with a local learner, and a restarted actor
-loses nothing. This module imports Ray: it is only loaded by a run that uses a cluster.
+retries the round from the state sent with it. This module imports Ray: it is only loaded by a run that uses a cluster.
 """
 
 from __future__ import annotations
@@ -19,6 +19,8 @@ from torch import nn
 from gpl_dist.config import ConfigError, TrainingConfig
 
 DRIVER, GPU_ACTOR = "driver", "gpu-actor"
+#: how long the driver waits for the learner's actor to be placed on a GPU
+GPU_WAIT_S = 600
 
 
 def placement(device: str, driver_has_cuda: bool, cluster_gpus: float) -> str:
@@ -48,7 +50,7 @@ def cluster_gpus() -> float:
 def _cpu(value):
     """``value`` (a state dict, possibly nested) with every tensor on the CPU."""
     if isinstance(value, torch.Tensor):
-        return value.detach().cpu()
+        return value.detach().cpu().clone()  # a view of the flat parameters would pickle all of them
     if isinstance(value, dict):
         return {k: _cpu(v) for k, v in value.items()}
     if isinstance(value, list):
@@ -100,8 +102,27 @@ class RemoteLearner:
         self.optimizer = _OptimizerState()
         self.generator = torch.Generator().manual_seed(seed)
         # num_cpus=0: the rollout actors hold the CPUs (platform notes: the deadlock trap)
-        actor = ray.remote(num_cpus=0, num_gpus=num_gpus, max_restarts=1)(LearnerActorImpl)
+        # a round depends only on the state sent with it: a restarted actor retries it safely
+        actor = ray.remote(num_cpus=0, num_gpus=num_gpus, max_restarts=1, max_task_retries=1)(LearnerActorImpl)
         self._actor: Any = actor.remote(model, cfg, seed)  # type: ignore[attr-defined]  # an ActorClass
+        if num_gpus:
+            self._check_on_gpu()
+
+    def _check_on_gpu(self) -> None:
+        """Fail in one line when the actor got no GPU in time or its torch cannot use one."""
+        import ray
+        from ray.exceptions import GetTimeoutError
+
+        try:
+            device = ray.get(self._actor.device.remote(), timeout=GPU_WAIT_S)
+        except GetTimeoutError:
+            ray.kill(self._actor)
+            raise ConfigError(f"the learner's Ray actor got no free GPU within {GPU_WAIT_S} s (every GPU of the "
+                              "cluster is taken?); use training.device=cpu or free one") from None
+        if not device.startswith("cuda"):
+            ray.kill(self._actor)
+            raise ConfigError(f"the learner's Ray actor holds a GPU but its torch trains on {device} (a CPU-only "
+                              "torch build on the GPU node?); install a CUDA torch there or use training.device=cpu")
 
     def load_optimizer_state(self, state: dict) -> None:
         self.optimizer.state = state

@@ -19,8 +19,12 @@ Data parallel (``learner.parallel``): with a ``group`` of N learners, every lear
 epoch order (rank 0's, broadcast) and takes its contiguous slice of each global batch of
 ``batch_size`` states; its loss is weighted by its share of the batch, so the one all-reduce (sum)
 of the flat gradient per step gives every learner the gradient of the whole batch, and their
-identical Adam steps keep identical weights. The optimisation is that of one learner with the same
-``batch_size``, up to the order of floating-point sums.
+identical Adam steps keep identical weights. Without BatchNorm the optimisation is that of one
+learner with the same ``batch_size``, up to the order of floating-point sums (and a last batch
+of fewer than 2N states, which is skipped); BatchNorm normalises each slice by its own statistics.
+
+``torch.set_num_threads`` is process-wide: building a learner sets the threads of its whole
+process (the driver's, for rank 0).
 """
 
 from __future__ import annotations
@@ -124,11 +128,10 @@ def available_cpus() -> int:
 def threads_per_learner(cfg: TrainingConfig) -> int:
     """``training.num_threads``, or with 0 the available cores shared out among the learners.
 
-    One by default: with two intra-op threads a learner alone on 2 cores was 10 % faster, but
-    beside one busy process it ran 4x slower (an OpenMP thread spins at every operation's barrier
-    waiting for a descheduled sibling); with one thread it lost 6 %. On a Ray node the learner
-    always shares its cores, so the second core is better spent on a second learner process
-    (``training.num_learners``) than on a second thread. ``benchmarks/learner_speed.py --with-load``.
+    One by default: a learner with two intra-op threads stalls at every operation when anything
+    else runs on its cores (an OpenMP thread waits for a descheduled sibling), and its parallel
+    sums change from run to run. On a Ray node the learner always shares its cores, so further
+    cores go to further learner processes (``training.num_learners``); docs/results.md, Speed.
     """
     if cfg.num_threads:
         return cfg.num_threads
@@ -208,7 +211,7 @@ class Learner:
             perm = self._epoch_order(tv)
             loss_sum, correct, seen = 0.0, 0, 0
             for idx in perm.split(self.cfg.batch_size):
-                if idx.numel() < 2 * size and n >= 2 * size:
+                if idx.numel() < 2 * size and (size > 1 or n >= 2):
                     continue  # BatchNorm needs two samples on every learner
                 mine = idx[rank * idx.numel() // size:(rank + 1) * idx.numel() // size]
                 batch = self._gather(tv, mine)
@@ -221,6 +224,7 @@ class Learner:
             loss_sum, correct, seen = self._sum_over_learners(loss_sum, correct, seen)
             if on_epoch is not None and seen:
                 on_epoch(epoch, loss_sum / seen, correct / seen)
+        self._average_batchnorm_statistics()
         self.model.eval()
         spread = None if last_conditioning is None else self.correction_spread(last_conditioning)
         return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,
@@ -267,6 +271,17 @@ class Learner:
         for tensor in (self.flat_parameters.data, state["exp_avg"], state["exp_avg_sq"], state["step"],
                        *self.model.buffers()):
             self.group.broadcast_(tensor)
+
+    def _average_batchnorm_statistics(self) -> None:
+        """Each learner's BatchNorm running statistics saw only its slices: average them."""
+        if self.group is None:
+            return
+        for module in self.model.modules():
+            if isinstance(module, nn.modules.batchnorm._BatchNorm):
+                for stat in (module.running_mean, module.running_var):
+                    if isinstance(stat, torch.Tensor):
+                        self.group.all_reduce_sum_(stat)
+                        stat.div_(self.group.size)
 
     def step(self, tv: TensorView, idx: torch.Tensor) -> tuple[float, int]:
         """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""

@@ -16,6 +16,8 @@ from gpl_dist.experts.multiroom import MultiRoomExpert
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
 from gpl_dist.models.gpl import GPLPolicy
+from learner.parallel import DataParallelLearner
+from learner.remote import RemoteLearner
 from learner.trainer import Learner
 from storage.reader import BufferReader
 from storage.writer import ShardWriter
@@ -54,3 +56,7 @@ def buffer(w: ShardWriter, r: BufferReader) -> tuple[roles.BufferWriter, roles.B
 
 def learner(x: Learner) -> roles.Learner:
     return x
+
+
+def other_learners(a: DataParallelLearner, b: RemoteLearner) -> tuple[roles.Learner, roles.Learner]:
+    return a, b

@@ -18,7 +18,7 @@ from tests.test_trainer import _view
 
 
 def _cfg(**kw):
-    return TrainingConfig(**{"num_epochs_per_round": 2, "batch_size": 64, "num_threads": 1, **kw})
+    return TrainingConfig(**{"num_epochs_per_round": 2, "batch_size": 64, "num_threads": 1, "device": "cpu", **kw})
 
 
 def test_two_learners_train_as_one_with_the_same_batch(tmp_path):
@@ -74,7 +74,7 @@ def test_learners_listen_on_loopback_only_and_a_dead_helper_fails_the_round_in_o
         pids = [os.getpid(), *(p.pid for p in learner._procs)]
         learner.train_round(tv)
         sockets = _listening(pids)
-        assert all(_is_loopback(ip) for _, ip, _ in sockets), sockets
+        assert sockets and all(_is_loopback(ip) for _, ip, _ in sockets), sockets  # gloo listens, on loopback
         learner._procs[0].kill()
         learner._procs[0].join()
         with pytest.raises(LearnerFailed, match="exited"):
@@ -85,17 +85,18 @@ def test_learners_listen_on_loopback_only_and_a_dead_helper_fails_the_round_in_o
 
 def test_how_many_learners_and_threads():
     cores = available_cpus()
-    assert resolve_num_learners(TrainingConfig(num_learners=3)) == 3
-    assert resolve_num_learners(TrainingConfig(num_learners=0)) == cores
-    assert resolve_num_learners(TrainingConfig(num_learners=8, batch_size=6)) == 3  # >= 2 states each
-    assert resolve_num_learners(TrainingConfig(num_learners=1)) == 1
+    cpu = {"device": "cpu"}
+    assert resolve_num_learners(TrainingConfig(num_learners=3, **cpu)) == 3
+    assert resolve_num_learners(TrainingConfig(num_learners=0, **cpu)) == cores
+    assert resolve_num_learners(TrainingConfig(num_learners=8, batch_size=6, **cpu)) == 3  # >= 2 states each
+    assert resolve_num_learners(TrainingConfig(num_learners=1, **cpu)) == 1
     # threads: one per learner by default; 0 shares the cores out, never more threads than cores
     assert threads_per_learner(TrainingConfig()) == 1
     assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=1)) == cores
     assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=0)) == 1
     assert threads_per_learner(TrainingConfig(num_threads=0, num_learners=cores * 2)) == 1
     assert threads_per_learner(TrainingConfig(num_learners=2, num_threads=3)) == 3
-    assert isinstance(make_learner(build_model(get_domain("multiroom")), TrainingConfig(num_learners=1)), Learner)
+    assert isinstance(make_learner(build_model(get_domain("multiroom")), TrainingConfig(num_learners=1, **cpu)), Learner)
 
 
 def test_num_learners_is_checked_with_the_config(tmp_path):
@@ -148,3 +149,22 @@ def test_a_learner_actor_trains_as_the_driver_would(tmp_path, ray_cluster):
         assert remote.optimizer.state_dict()["state"][0]["step"] == local.optimizer.state_dict()["state"][0]["step"]
     finally:
         remote.close()
+
+
+@pytest.mark.ray
+def test_cuda_on_a_cluster_without_a_gpu_fails_in_one_line_before_anything_is_written(tmp_path, ray_cluster,
+                                                                                       monkeypatch):
+    """With --address the GPU may be on another node, so the check waits until the cluster is
+    joined; it must still come before the run dir gets a config (GPUs are mocked away, so the
+    test means the same on a GPU machine)."""
+    from learner import remote
+    from learner.driver import run_training
+    from tests.test_training_e2e import tiny
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    monkeypatch.setattr(remote, "cluster_gpus", lambda: 0.0)  # a GPU machine running this test has one
+    run = tmp_path / "run"
+    with pytest.raises(ConfigError, match="neither this machine nor the Ray cluster has a GPU"):
+        run_training(tiny(**{"training.device": "cuda"}), run, serial=False, address="auto", progress=False)
+    assert not (run / "config.yaml").exists() and not (run / "buffer" / "manifests").exists()
+    assert ray_cluster.is_initialized()  # the shared cluster is left running
