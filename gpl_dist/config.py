@@ -103,7 +103,7 @@ class TrainingConfig:
     device: str = "auto"
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
     num_threads: int = 1
-    """Torch threads per learner process; more stall beside other busy processes and are not reproducible (0: cores / learners)."""
+    """Torch threads per learner process; more stall beside other busy processes, sum irreproducibly (0: cores / learners)."""
     num_learners: int = 1
     """Data-parallel learner processes on the driver's machine, batch_size split among them (0: one per core)."""
 
