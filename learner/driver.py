@@ -299,10 +299,10 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
 def _make_learner(cfg: RunConfig, model, on_ray: bool):
     """The learner in this process (with its data-parallel helpers), or, on a Ray cluster whose
     GPU is on another node, a Ray actor there (``learner.remote.placement``)."""
-    if on_ray and cfg.training.device != "cpu" and not torch.cuda.is_available():
+    if on_ray:
         from learner import remote  # imports Ray: only for a run that uses it
 
-        if remote.placement(cfg.training.device, False, remote.cluster_gpus()) == remote.GPU_ACTOR:
+        if remote.placement(cfg.training.device, torch.cuda.is_available(), remote.cluster_gpus()) == remote.GPU_ACTOR:
             log.info("training on a GPU of the Ray cluster (this node has none)")
             return remote.RemoteLearner(model, cfg.training, seed=cfg.seed)
     return make_learner(model, cfg.training, seed=cfg.seed)
