@@ -83,20 +83,25 @@ def plain_loop(cfg, tv, max_steps: int) -> tuple[float, int]:
 
     from gpl_dist.domains import get_domain
     from gpl_dist.models.gpl import build_model_from_config
+    from learner.trainer import resolve_device
 
-    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=0)
+    device = resolve_device(cfg.training.device)
+    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=0).to(device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.training.learning_rate)
     model.train()
     perm = torch.randperm(tv.num_states, generator=torch.Generator().manual_seed(0))
     batches = [b for b in perm.split(512) if b.numel() >= 2][:max_steps]
     t0, seen = time.perf_counter(), 0
     for idx in batches:
-        obs, cond, rows, targets = per_state_batch(tv, idx)
-        loss = torch.nn.functional.cross_entropy(model(obs, cond, rows), targets)
+        obs, cond, rows, targets = per_state_batch(tv, idx)  # built in host memory, as a feed_dict is
+        logits = model(obs.to(device), cond.to(device), rows.to(device))
+        loss = torch.nn.functional.cross_entropy(logits, targets.to(device))
         opt.zero_grad()
         loss.backward()
         opt.step()
         seen += idx.numel()
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
     return time.perf_counter() - t0, seen
 
 
@@ -151,8 +156,12 @@ def bench_domain(domain: str, args) -> None:
     ours_s, ours_n, learners = gpl_dist_learner(cfg, tv, args.epochs)
     plain_rate, ours_rate = plain_n / plain_s, ours_n / ours_s
     t = cfg.training
+    from learner.trainer import resolve_device
+
+    device = resolve_device(cfg.training.device)
+    where = f"{threads} CPU threads" if device.type == "cpu" else f"{torch.cuda.get_device_name(device)}"
     print(f"[{domain}] plain eager loop : {plain_rate:>9,.0f} samples/s  ({plain_n:,} states, batch 512, "
-          f"per-tensor Adam, {threads} threads)")
+          f"per-tensor Adam, {where})")
     print(f"[{domain}] gpl-dist learner : {ours_rate:>9,.0f} samples/s  ({ours_n:,} states = {args.epochs} epoch(s), "
           f"batch {t.batch_size}, {learners} learner process(es), states_per_chunk {t.states_per_chunk})")
     print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x (target >= 2.0)", flush=True)

@@ -7,7 +7,7 @@ so each attempt's instruction and correction history is encoded once per batch.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -50,6 +50,20 @@ class TensorView:
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
                    t(view.trajectories), None if probs is None else t(probs))
+
+    def to(self, device: torch.device) -> "TensorView":
+        """This view on ``device`` (one copy of every tensor; itself when already there)."""
+        if self.observations.device == device:
+            return self
+        return TensorView(**{k: None if x is None else x.to(device) for k, x in self._tensors().items()})
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the view's tensors."""
+        return sum(x.numel() * x.element_size() for x in self._tensors().values() if x is not None)
+
+    def _tensors(self) -> dict[str, torch.Tensor | None]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @property
     def num_states(self) -> int:

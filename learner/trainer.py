@@ -199,7 +199,7 @@ class Learner:
         return state_dict_to_numpy(self.model)
 
     def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:
-        tv = view if isinstance(view, TensorView) else TensorView.from_view(view)
+        tv = self._on_device(view if isinstance(view, TensorView) else TensorView.from_view(view))
         n = tv.num_states
         start = time.perf_counter()
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0
@@ -208,8 +208,10 @@ class Learner:
         rank, size = (0, 1) if self.group is None else (self.group.rank, self.group.size)
         last_conditioning = None
         for epoch in range(self.cfg.num_epochs_per_round):
-            perm = self._epoch_order(tv)
-            loss_sum, correct, seen = 0.0, 0, 0
+            perm = self._epoch_order(tv).to(tv.observations.device)
+            # summed on the device: reading a GPU's loss every step would wait for every step
+            loss_total = torch.zeros((), dtype=torch.float64, device=self.device)
+            correct_total, seen = torch.zeros((), dtype=torch.long, device=self.device), 0
             for idx in perm.split(self.cfg.batch_size):
                 if idx.numel() < 2 * size and (size > 1 or n >= 2):
                     continue  # BatchNorm needs two samples on every learner
@@ -217,11 +219,11 @@ class Learner:
                 batch = self._gather(tv, mine)
                 loss, hits = self._train_on(*batch, share=mine.numel() / idx.numel())
                 last_conditioning = batch[2]
-                loss_sum += loss * mine.numel()
-                correct += hits
+                loss_total += loss * mine.numel()
+                correct_total += hits
                 seen += mine.numel()
                 steps += 1
-            loss_sum, correct, seen = self._sum_over_learners(loss_sum, correct, seen)
+            loss_sum, correct, seen = self._sum_over_learners(float(loss_total), int(correct_total), seen)
             if on_epoch is not None and seen:
                 on_epoch(epoch, loss_sum / seen, correct / seen)
         self._average_batchnorm_statistics()
@@ -244,7 +246,8 @@ class Learner:
     def _epoch_order(self, tv: TensorView) -> torch.Tensor:
         """This epoch's order of states: rank 0's, on every learner of a group."""
         if self.group is None or self.group.rank == 0:
-            perm = epoch_order(tv.attempt_rows, self.cfg.states_per_chunk, self.generator)
+            # drawn on the host, from the learner's CPU generator, whatever the view's device
+            perm = epoch_order(tv.attempt_rows.cpu(), self.cfg.states_per_chunk, self.generator)
         else:
             perm = torch.empty(tv.num_states, dtype=torch.long)
         if self.group is not None:
@@ -285,7 +288,16 @@ class Learner:
 
     def step(self, tv: TensorView, idx: torch.Tensor) -> tuple[float, int]:
         """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""
-        return self._train_on(*self._gather(tv, idx))
+        loss, hits = self._train_on(*self._gather(tv, idx))
+        return float(loss), int(hits)
+
+    def _on_device(self, tv: TensorView) -> TensorView:
+        """The view in the memory of the learner's GPU when it takes under half of what is free there
+        (each batch is then gathered on the GPU, with no host-to-device copy per step); else as it is."""
+        if self.device.type != "cuda":
+            return tv
+        free_bytes, _ = torch.cuda.mem_get_info(self.device)
+        return tv.to(self.device) if tv.nbytes < free_bytes // 2 else tv
 
     def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning,
                                                                   torch.Tensor, torch.Tensor]:
@@ -294,8 +306,10 @@ class Learner:
         dev = self.device
         return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev)
 
-    def _train_on(self, obs, labels, cond, rows, targets, share: float = 1.0) -> tuple[float, int]:
-        """One step on a batch; ``share`` is this learner's fraction of a group's global batch."""
+    def _train_on(self, obs, labels, cond, rows, targets, share: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """One step on a batch; ``share`` is this learner's fraction of a group's global batch.
+        Returns the batch's mean loss and its number of correct argmax actions, as 0-d tensors on
+        the learner's device."""
         logits = self.model(obs, cond, rows)
         loss = nn.functional.cross_entropy(logits, targets)
         self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
@@ -303,4 +317,4 @@ class Learner:
         if self.group is not None:
             self.group.all_reduce_sum_(self.flat_grads)
         self.optimizer.step()
-        return float(loss.detach()), int((logits.detach().argmax(1) == labels).sum())
+        return loss.detach(), (logits.detach().argmax(1) == labels).sum()

@@ -28,7 +28,9 @@ def _view(tmp_path, rounds=1):
 
 
 def _cfg(**kw):
-    return TrainingConfig(**{"num_epochs_per_round": 1, "batch_size": 64, "num_threads": 1, **kw})
+    """One CPU thread: these tests check bitwise properties (a GPU sums in a different order each
+    run; test_a_round_on_every_device_here_matches_the_cpu covers the GPU)."""
+    return TrainingConfig(**{"num_epochs_per_round": 1, "batch_size": 64, "num_threads": 1, "device": "cpu", **kw})
 
 
 def test_parameters_are_views_of_one_flat_tensor_and_train(tmp_path):
@@ -47,7 +49,7 @@ def test_parameters_are_views_of_one_flat_tensor_and_train(tmp_path):
     # a fresh model loads the trained values (state_dict copies out of the flat storage)
     fresh = build_model(get_domain("multiroom"))
     fresh.load_state_dict(learner.model.state_dict())
-    assert all(torch.equal(a, b) for a, b in zip(fresh.state_dict().values(), learner.model.state_dict().values()))
+    assert all(torch.equal(a, b.cpu()) for a, b in zip(fresh.state_dict().values(), learner.model.state_dict().values()))
 
 
 def test_flat_adam_continues_a_per_tensor_adam_exactly(tmp_path):
@@ -147,3 +149,24 @@ def test_learner_conditions_on_what_the_worker_acted_on(tmp_path, domain_name, t
         torch.testing.assert_close(z_learner[rows[n]], z_worker[key], rtol=0, atol=1e-6)
     last_states = view.observations[view.timesteps == domain.steps_per_attempt - 1]
     assert np.array_equal(view.trajectories[:, -1], last_states) == end_aligned
+
+
+def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
+    """On a GPU machine the view moves to the GPU once and a round there follows the CPU's (up to
+    the GPU's float32 convolutions); on a CPU machine ``TensorView.to`` round-trips exactly."""
+    tv = TensorView.from_view(_view(tmp_path, rounds=2))
+    assert tv.to(torch.device("cpu")) is tv
+    assert tv.nbytes == sum(getattr(tv, f).nbytes for f in ("observations", "expert_actions", "attempt_rows",
+                                                             "instruction_ids", "correction_ids", "context_rows",
+                                                             "trajectories"))
+    results = {}
+    for device in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
+        learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg(device=device, num_epochs_per_round=2))
+        assert learner._on_device(tv).observations.device.type == device
+        stats = learner.train_round(tv)
+        results[device] = (stats.loss, stats.accuracy, state_dict_to_numpy(learner.model))
+    for device, (loss, accuracy, weights) in results.items():
+        assert loss == pytest.approx(results["cpu"][0], rel=1e-3)
+        assert accuracy == pytest.approx(results["cpu"][1], abs=0.02)
+        for k, w in weights.items():
+            np.testing.assert_allclose(w, results["cpu"][2][k], rtol=0, atol=2e-3, err_msg=f"{device}: {k}")
