@@ -1,4 +1,4 @@
-"""The ``gpl-dist`` command: train, eval, render, inspect, verify, clean.
+"""The ``gpl-dist`` command: train, eval, suite, render, inspect, verify, clean.
 
 Heavy imports (torch, Ray, storage) happen inside each subcommand so ``gpl-dist --help`` is fast.
 One error path: every expected failure (``gpl_dist.errors.UserError``: config, storage integrity,
@@ -103,6 +103,40 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if report["reduced_scale"]:
         print(f"note: {report['reduced_scale']}")
     print(f"wrote {path} and {path.with_suffix('.png')}")
+    return 0
+
+
+def _names(text: str | None) -> tuple[str, ...]:
+    return tuple(n.strip() for n in (text or "").split(",") if n.strip())
+
+
+def cmd_suite_run(args: argparse.Namespace) -> int:
+    """``gpl-dist suite run``: train and evaluate every unfinished run of a suite (resumable)."""
+    from gpl_dist.suite import load_suite, run_suite
+
+    suite = load_suite(args.suite)
+    run_suite(suite, args.out, only=_names(args.only), seeds=_parse_seeds(args.seeds) or (), address=args.address,
+              serial=args.serial, progress=not args.no_progress)
+    print(f"suite {args.suite}: every selected run is done; report with: gpl-dist suite report {args.out}")
+    return 0
+
+
+def cmd_suite_status(args: argparse.Namespace) -> int:
+    """``gpl-dist suite status``: each run's state (done, evaluate, resume, new), read from its files."""
+    from gpl_dist.suite import load_suite, plan, run_state
+
+    suite = load_suite(args.suite)
+    for run in plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ()):
+        print(f"{run_state(run, suite):8s} {run.entry.name} seed {run.seed}  ({run.run_dir})")
+    return 0
+
+
+def cmd_suite_report(args: argparse.Namespace) -> int:
+    """``gpl-dist suite report``: the paper's tables from a suite's eval files, as Markdown and HTML."""
+    from gpl_dist.suite_report import write_report
+
+    md, html = write_report(args.suite_out, args.out)
+    print(f"wrote {md} and {html}")
     return 0
 
 
@@ -228,6 +262,25 @@ def build_parser() -> argparse.ArgumentParser:
     acting.add_argument("--greedy", dest="greedy", action="store_true", default=None, help="act with the most likely action")
     acting.add_argument("--sample", dest="greedy", action="store_false", help="sample actions from the policy (default)")
     p.set_defaults(func=cmd_eval)
+
+    p = sub.add_parser("suite", help="run the paper's experiments (a suite file) and report them")
+    suite_sub = p.add_subparsers(dest="suite_command", required=True)
+    for name, func, text in (("run", cmd_suite_run, "train and evaluate every unfinished run; resumes a killed suite"),
+                             ("status", cmd_suite_status, "each run's state, read from its files")):
+        q = suite_sub.add_parser(name, help=text)
+        q.add_argument("suite", help="suite file (e.g. configs/suites/paper.yaml)")
+        q.add_argument("--out", required=True, help="the suite's folder of run dirs (OUT/<entry>/seed<k>)")
+        q.add_argument("--only", help="comma-separated entry names")
+        q.add_argument("--seeds", help="comma-separated training seeds")
+        if name == "run":
+            q.add_argument("--address", help="a Ray cluster: run the entries at once, each as a Ray task")
+            q.add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
+            q.add_argument("--no-progress", action="store_true", help="no progress bars")
+        q.set_defaults(func=func)
+    q = suite_sub.add_parser("report", help="the paper's tables from a suite's runs (Markdown and HTML)")
+    q.add_argument("suite_out", help="the suite's folder of run dirs")
+    q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
+    q.set_defaults(func=cmd_suite_report)
 
     p = sub.add_parser("render", help="draw a task (PNG) or an attempt (GIF)")
     p.add_argument("--env", required=True, choices=domain_names())

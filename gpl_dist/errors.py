@@ -22,3 +22,7 @@ class RunDirError(UserError):
 class UsageError(UserError, ValueError):
     """An argument is out of range or malformed, or names something that does not exist (a domain,
     split, task, expert or correction kind). Also a ``ValueError``, for callers of the library."""
+
+
+class SuiteError(UserError):
+    """A suite run failed (on a cluster) or its run dir belongs to another version of its entry."""

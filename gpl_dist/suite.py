@@ -1,0 +1,304 @@
+"""Experiment suites: the paper's experiments as named overlays of base configs, run and resumed.
+
+A suite file (``configs/suites/paper.yaml``) names
+
+- ``evaluations``: the meta-test settings (split, evaluation seeds, sampled or greedy actions,
+  corrections, tasks), each under a name, fixed for every entry that names it;
+- ``entries``: each a base config, ``set`` overrides (the method), the training ``seeds`` and the
+  ``evaluations`` to run on its final checkpoint (the first one becomes the run's ``eval`` section).
+
+``gpl-dist suite run`` trains and evaluates every (entry, training seed) into
+``OUT/<entry>/seed<k>/`` (an ordinary run dir), one after another. Each run's state is read from
+its files, so a killed suite loses at most the round in flight: a run with checkpoints resumes
+(``train --resume``), a trained run is only evaluated, a finished one is skipped. A run whose entry
+changed since it ran is refused, never mixed. ``OUT/<entry>/seed<k>/suite-run.json`` records the
+code commit, the suite, the entry, the evaluations' files and the wall times.
+
+The format, in one place (unknown keys fail in one line before anything runs)::
+
+    evaluations:
+      test: {split: test, seeds: [0, 1, 2, 3, 4], num_corrections: 5, greedy_actions: false, max_tasks: 0}
+    entries:
+      multiroom-gpl:
+        base: ../multiroom.yaml          # relative to the suite file
+        set: {model.variant: gpl}        # dotted config keys; no eval.* and no seed keys
+        seeds: [0, 1, 2]
+        evaluations: [test]
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+from gpl_dist.config import ConfigError, RunConfig, config_to_dict, load_config
+
+#: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
+RECORD_VERSION = 1
+_EVAL_KEYS = {"split": str, "seeds": list, "num_corrections": int, "greedy_actions": bool, "max_tasks": int}
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One named set of meta-test settings, identical for every entry that names it."""
+
+    name: str
+    split: str
+    """Task split evaluated (``test``, ``heldout_test``, ...)."""
+    seeds: tuple[int, ...]
+    """Evaluation seeds (each a full pass over the split's tasks)."""
+    num_corrections: int
+    """Corrections per task (attempts = corrections + 1)."""
+    greedy_actions: bool
+    """Argmax actions instead of sampled ones."""
+    max_tasks: int
+    """Evaluate the split's first tasks only (0: all)."""
+
+    def overrides(self) -> dict[str, str]:
+        """This evaluation as ``eval.*`` config overrides."""
+        return {"eval.split": self.split, "eval.seeds": json.dumps(list(self.seeds)),
+                "eval.num_corrections": str(self.num_corrections),
+                "eval.greedy_actions": "true" if self.greedy_actions else "false", "eval.max_tasks": str(self.max_tasks)}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One experiment: a base config with a method's overrides, its training seeds and evaluations."""
+
+    name: str
+    base: Path
+    """The base config file."""
+    overrides: tuple[tuple[str, str], ...]
+    """Dotted config keys and YAML values applied over the base (the method)."""
+    seeds: tuple[int, ...]
+    """Training seeds (``seed`` of the run config): one run each."""
+    evaluations: tuple[str, ...]
+    """Names of the suite's evaluations; the first is each run's own ``eval`` section."""
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A parsed suite file."""
+
+    path: Path
+    evaluations: Mapping[str, Evaluation]
+    entries: tuple[Entry, ...]
+
+    def entry(self, name: str) -> Entry:
+        for e in self.entries:
+            if e.name == name:
+                return e
+        raise ConfigError(f"{self.path}: no entry '{name}' (entries: {', '.join(e.name for e in self.entries)})")
+
+
+@dataclass(frozen=True)
+class SuiteRun:
+    """One (entry, training seed) of a suite, and where it lives."""
+
+    entry: Entry
+    seed: int
+    run_dir: Path
+
+    def config(self, suite: Suite) -> RunConfig:
+        """The run's resolved config: base, the entry's overrides, the seed, its first evaluation."""
+        overrides = dict(self.entry.overrides)
+        overrides["seed"] = str(self.seed)
+        overrides.update(suite.evaluations[self.entry.evaluations[0]].overrides())
+        return load_config(self.entry.base, overrides)
+
+
+def _expect(ok: bool, where: str, message: str) -> None:
+    if not ok:
+        raise ConfigError(f"{where}: {message}")
+
+
+def _keys(where: str, mapping: Any, allowed: set[str], required: set[str]) -> None:
+    _expect(isinstance(mapping, dict), where, f"expected a mapping, got {type(mapping).__name__}")
+    unknown = sorted(set(mapping) - allowed)
+    _expect(not unknown, where, f"unknown key '{unknown[0] if unknown else ''}' (known: {', '.join(sorted(allowed))})")
+    missing = sorted(required - set(mapping))
+    _expect(not missing, where, f"missing key '{missing[0] if missing else ''}'")
+
+
+def _seeds(where: str, value: Any) -> tuple[int, ...]:
+    ok = isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in value)
+    _expect(bool(ok), where, f"expected a non-empty list of seeds >= 0, got {value!r}")
+    _expect(len(set(value)) == len(value), where, f"seeds repeat: {value}")
+    return tuple(value)
+
+
+def _evaluation(where: str, name: str, raw: Any) -> Evaluation:
+    _keys(where, raw, set(_EVAL_KEYS), set(_EVAL_KEYS) - {"max_tasks"})
+    for key, tp in _EVAL_KEYS.items():
+        value = raw.get(key, 0)
+        _expect(isinstance(value, tp) and (tp is bool or not isinstance(value, bool)), f"{where}.{key}",
+                f"expected {tp.__name__}, got {value!r}")
+    return Evaluation(name, raw["split"], _seeds(f"{where}.seeds", raw["seeds"]), raw["num_corrections"],
+                      raw["greedy_actions"], raw.get("max_tasks", 0))
+
+
+def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[str, Evaluation]) -> Entry:
+    _keys(where, raw, {"base", "set", "seeds", "evaluations"}, {"base", "seeds", "evaluations"})
+    _expect(isinstance(raw["base"], str), f"{where}.base", "expected a config path")
+    sets = raw.get("set") or {}
+    _expect(isinstance(sets, dict), f"{where}.set", "expected a mapping of dotted config keys")
+    for key in sets:
+        _expect(isinstance(key, str) and key != "seed" and not key.startswith("eval."), f"{where}.set",
+                f"'{key}' is the suite's to set (training seeds: seeds; evaluation: evaluations)")
+    names = raw["evaluations"]
+    _expect(isinstance(names, list) and bool(names), f"{where}.evaluations", "expected a non-empty list of names")
+    for n in names:
+        _expect(n in evaluations, f"{where}.evaluations", f"unknown evaluation '{n}' (known: {', '.join(evaluations)})")
+    overrides = tuple((k, v if isinstance(v, str) else json.dumps(v)) for k, v in sets.items())
+    return Entry(name, (folder / raw["base"]).resolve(), overrides, _seeds(f"{where}.seeds", raw["seeds"]), tuple(names))
+
+
+def load_suite(path: str | Path) -> Suite:
+    """Parse and check a suite file; every entry's config is built once, so a bad key or choice
+    fails here, in one line, before anything runs."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"suite file not found: {path}")
+    try:
+        raw = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path} is not valid YAML ({str(err).splitlines()[0]})") from None
+    _keys(str(path), raw, {"evaluations", "entries"}, {"evaluations", "entries"})
+    _keys(f"{path}: evaluations", raw["evaluations"], set(raw["evaluations"] or {}), set())
+    evaluations = {n: _evaluation(f"{path}: evaluations.{n}", n, v) for n, v in raw["evaluations"].items()}
+    _keys(f"{path}: entries", raw["entries"], set(raw["entries"] or {}), set())
+    entries = []
+    for name, spec in raw["entries"].items():
+        _expect(isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum(), f"{path}: entries",
+                f"an entry's name is letters, digits, '-' and '_' (it names a folder), got {name!r}")
+        entries.append(_entry(f"{path}: entries.{name}", name, spec, path.parent, evaluations))
+    suite = Suite(path, evaluations, tuple(entries))
+    for e in suite.entries:
+        SuiteRun(e, e.seeds[0], Path(".")).config(suite)  # fails in one line on a bad key or choice
+    return suite
+
+
+def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple[int, ...] = ()) -> list[SuiteRun]:
+    """The runs of ``suite`` under ``out``, in file order; ``only`` entries, ``seeds`` training seeds."""
+    for name in only:
+        suite.entry(name)
+    runs = []
+    for e in suite.entries:
+        if only and e.name not in only:
+            continue
+        runs += [SuiteRun(e, s, Path(out) / e.name / f"seed{s}") for s in e.seeds if not seeds or s in seeds]
+    return runs
+
+
+def code_commit() -> str:
+    """The git commit of the code running (with ``+dirty`` when tracked files differ), or ``unknown``."""
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
+def read_record(run_dir: Path) -> dict | None:
+    """A run's ``suite-run.json``, or None."""
+    p = run_dir / "suite-run.json"
+    return json.loads(p.read_text()) if p.is_file() else None
+
+
+def _write_record(run_dir: Path, record: dict) -> None:
+    tmp = run_dir / "suite-run.json.tmp"
+    tmp.write_text(json.dumps(record, indent=1) + "\n")
+    tmp.replace(run_dir / "suite-run.json")
+
+
+def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
+    """A run dir made by another version of its entry is refused: its results would be mixed."""
+    saved = run.run_dir / "config.yaml"
+    if saved.is_file() and config_to_dict(load_config(saved)) != config_to_dict(cfg):
+        raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
+                          "(the suite file or the base config changed): use another --out, or remove that run dir")
+
+
+def run_state(run: SuiteRun, suite: Suite) -> str:
+    """``done``, ``evaluate`` (trained), ``resume`` (started) or ``new``, read from the run's files."""
+    from learner.checkpoint import LATEST, load_checkpoint
+
+    cfg = run.config(suite)
+    _check_unchanged(run, cfg)
+    ckpt = run.run_dir / "checkpoints" / LATEST
+    if not any((run.run_dir / name).exists() for name in ("config.yaml", "checkpoints", "buffer", "metrics.jsonl")):
+        return "new"  # nothing but lease files: a driver stopped before writing anything
+    if not ckpt.is_file() or load_checkpoint(ckpt).round_index + 1 < cfg.training.num_rounds:
+        return "resume"
+    record = read_record(run.run_dir) or {}
+    done = set(record.get("evaluations", {}))
+    return "done" if set(run.entry.evaluations) <= done else "evaluate"
+
+
+def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: bool = False, progress: bool = True,
+            log=print) -> dict:
+    """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written."""
+    from learner.driver import run_training
+    from learner.evaluate import evaluate_run
+
+    state = run_state(run, suite)
+    record = read_record(run.run_dir) or {"version": RECORD_VERSION, "suite": str(suite.path), "entry": run.entry.name,
+                                          "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
+    if state in ("new", "resume"):
+        log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
+        t0 = time.perf_counter()
+        run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
+                     progress=progress)
+        record["train_seconds"] += time.perf_counter() - t0
+        record["commits"] = sorted(set(record["commits"]) | {code_commit()})
+        _write_record(run.run_dir, record)
+    for name in run.entry.evaluations:
+        if name in record["evaluations"]:
+            continue
+        ev = suite.evaluations[name]
+        log(f"[{run.entry.name} seed {run.seed}] evaluation '{name}'")
+        t0 = time.perf_counter()
+        _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
+                               max_tasks=ev.max_tasks, greedy=ev.greedy_actions)
+        record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
+                                       "commit": code_commit(), "settings": dataclasses.asdict(ev)}
+        _write_record(run.run_dir, record)
+    return record
+
+
+def run_suite(suite: Suite, out: str | Path, *, only: tuple[str, ...] = (), seeds: tuple[int, ...] = (),
+              address: str | None = None, serial: bool = False, progress: bool = True,
+              log=print) -> list[tuple[SuiteRun, str]]:
+    """Bring every run of the plan to ``done``; returns each run's state before.
+
+    Without ``address``: one after another in this process, each with all of its config's
+    workers (``serial``: one worker in this process, without Ray). With ``address`` (a Ray
+    cluster): every unfinished run at once, each a Ray task that drives its own rollout actors on
+    the cluster (``OUT`` must then be on storage every node sees); Ray queues what does not fit.
+    """
+    runs = plan(suite, out, only, seeds)
+    before = [(r, run_state(r, suite)) for r in runs]  # refuses a changed entry before anything runs
+    Path(out).mkdir(parents=True, exist_ok=True)
+    (Path(out) / "suite.yaml").write_text(suite.path.read_text())
+    todo = [r for r, state in before if state != "done"]
+    for run, state in before:
+        if state == "done":
+            log(f"[{run.entry.name} seed {run.seed}] done: skipped")
+    if address is None:
+        for run in todo:
+            execute(run, suite, serial=serial, progress=progress, log=log)
+    elif todo:
+        from gpl_dist.suite_ray import execute_on_cluster
+        execute_on_cluster(todo, suite, address, log=log)
+    return before
