@@ -1,0 +1,308 @@
+"""The paper's Tables 1-5 from a suite's runs, beside the paper's numbers (``gpl-dist suite report``).
+
+Every number is read from the runs' ``eval*.json`` files (through each run's ``suite-run.json``,
+which names the file of each evaluation); none is typed here except the paper's own, in
+``PAPER_TABLES``. A cell is the mean over **training** seeds of the run's mean completion over its
+evaluation seeds, ± the standard deviation over training seeds (``n`` says how many; one seed has
+no ±). Rows of methods not built, or entries not run yet, are kept with the paper's number and a
+dash, so the report always shows every row of the paper.
+
+Writes ``report.md`` (plots beside it as PNG) and ``report.html`` (the same, plots inline).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import statistics
+from dataclasses import dataclass
+from pathlib import Path
+
+from gpl_dist.errors import RunDirError
+
+
+@dataclass(frozen=True)
+class PaperRow:
+    """One row of a paper table and the suite entry that reproduces it."""
+
+    label: str
+    entry: str | None
+    """Suite entry name; None when the method is not built (the reason is in ``note``)."""
+    evaluation: str
+    """Which of the entry's evaluations the row reads."""
+    columns: tuple[int, ...]
+    """Corrections (``c_k``) the row has values for; a baseline without corrections has ``(0,)``."""
+    paper: tuple[float | None, ...]
+    """The paper's values, one per column (None: '-' in the paper)."""
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class PaperTable:
+    """One paper table: its caption and rows over columns ``c_k``."""
+
+    key: str
+    caption: str
+    columns: tuple[int, ...]
+    rows: tuple[PaperRow, ...]
+
+
+_C05 = (0, 1, 2, 3, 4, 5)
+_MIVOA = "MIVOA is not built yet (issue 18, part 1)"
+PAPER_TABLES = (
+    PaperTable("table1-multiroom", "Table 1, multi-room: mean completion on the test tasks (baselines act without "
+               "corrections: their one number is the first attempt's)", _C05, (
+        PaperRow("Instruction", "multiroom-instruction", "test", (0,), (0.075,)),
+        PaperRow("Full Info", "multiroom-full-info", "test", (0,), (0.73,)),
+        PaperRow("MIVOA (Instr.)", None, "test", (0,), (0.067,), _MIVOA),
+        PaperRow("MIVOA (Full Info)", None, "test", (0,), (0.63,), _MIVOA),
+        PaperRow("GPL", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+    )),
+    PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
+               "initial block distance)", _C05, (
+        PaperRow("Instruction", "relocation-instruction", "test", (0,), (0.64,)),
+        PaperRow("Full Info", None, "test", (0,), (0.96,),
+                 "the paper's oracle gets the block and the goal's coordinates as numbers; not built yet (issue 18)"),
+        PaperRow("MIVOA (Instr.)", None, "test", (0,), (0.65,), _MIVOA),
+        PaperRow("MIVOA (Full Info)", None, "test", (0,), (None,), "not in the paper either"),
+        PaperRow("GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),
+    )),
+    PaperTable("table2", "Table 2, multi-room ablations", _C05, (
+        PaperRow("Base (GPL)", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+        PaperRow("No instruction", "multiroom-no-instruction", "test", _C05, (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
+        PaperRow("No trajectory", "multiroom-no-trajectory", "test", _C05, (0.077, 0.44, 0.62, 0.70, 0.76, 0.77)),
+        PaperRow("Only immediate correction", "multiroom-latest-correction", "test", _C05,
+                 (0.067, 0.49, 0.44, 0.58, 0.59, 0.63)),
+    )),
+    PaperTable("table3", "Table 3, more corrections at meta-test than in training (5)", (5, 7, 10), (
+        PaperRow("Multi-room", "multiroom-gpl", "test-c10", (5, 7, 10), (0.82, 0.83, 0.86)),
+        PaperRow("Obj Relocation", "relocation-gpl", "test-c10", (5, 7, 10), (0.90, 0.91, 0.95)),
+    )),
+    PaperTable("table4", "Table 4, multi-room correction types (GPL trained and tested with that kind)", (1, 2, 3, 4, 5), (
+        PaperRow("Directional", "multiroom-directional", "test", (1, 2, 3, 4, 5), (0.242, 0.343, 0.43, 0.51, 0.56)),
+        PaperRow("Binary", "multiroom-binary", "test", (1, 2, 3, 4, 5), (0.073, 0.078, 0.08, 0.089, 0.09)),
+        PaperRow("All", "multiroom-all-corrections", "test", (1, 2, 3, 4, 5), (0.236, 0.363, 0.44, 0.538, 0.606)),
+    )),
+    PaperTable("table5", "Table 5, multi-room, objects held out of training (tested on tasks whose true object "
+               "is a held-out colour-shape combination)", _C05, (
+        PaperRow("Full Info", "multiroom-heldout-full-info", "heldout", (0,), (0.57,)),
+        PaperRow("MIVOA (Full Info)", None, "heldout", (0,), (0.62,), _MIVOA),
+        PaperRow("GPL", "multiroom-heldout-gpl", "heldout", _C05, (0.073, 0.44, 0.58, 0.65, 0.73, 0.75)),
+    )),
+)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """One finished evaluation of one training seed, as its files say."""
+
+    entry: str
+    seed: int
+    run_dir: Path
+    evaluation: str
+    completion: tuple[float, ...]
+    """Mean completion after k corrections, k = 0.. (over the evaluation's seeds)."""
+    eval_file: Path
+    settings: tuple[tuple[str, object], ...]
+    """The evaluation's settings as recorded (split, seeds, corrections, actions, tasks)."""
+    commits: tuple[str, ...]
+    train_seconds: float
+    eval_seconds: float
+
+
+@dataclass(frozen=True)
+class Cell:
+    """A table cell: mean and standard deviation over training seeds."""
+
+    mean: float
+    std: float | None
+    n: int
+
+    def text(self) -> str:
+        return f"{self.mean:.3f}" if self.std is None else f"{self.mean:.3f} ± {self.std:.3f}"
+
+
+def collect_results(suite_out: str | Path) -> list[RunResult]:
+    """Every evaluation recorded under ``suite_out/<entry>/seed<k>/suite-run.json``."""
+    root = Path(suite_out)
+    if not root.is_dir():
+        raise RunDirError(f"no suite output at {root}")
+    results = []
+    for record_path in sorted(root.glob("*/seed*/suite-run.json")):
+        record = json.loads(record_path.read_text())
+        run_dir = record_path.parent
+        for name, ev in record.get("evaluations", {}).items():
+            payload = json.loads((run_dir / ev["file"]).read_text())
+            settings = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in ev["settings"].items())
+            results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
+                                     tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
+                                     tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),
+                                     float(ev.get("seconds", 0.0))))
+    _check_same_settings(results)
+    return results
+
+
+def _check_same_settings(results: list[RunResult]) -> None:
+    """One evaluation name must mean one set of settings across the suite: a cell never mixes."""
+    seen: dict[str, RunResult] = {}
+    for r in results:
+        first = seen.setdefault(r.evaluation, r)
+        if first.settings != r.settings:
+            raise RunDirError(f"evaluation '{r.evaluation}' has other settings in {r.run_dir} than in {first.run_dir} "
+                              f"({dict(r.settings)} vs {dict(first.settings)}): the suite file changed between runs")
+
+
+def cell(results: list[RunResult], entry: str, evaluation: str, k: int) -> Cell | None:
+    """Completion after ``k`` corrections of ``entry``'s ``evaluation``, over its training seeds."""
+    values = [r.completion[k] for r in results if r.entry == entry and r.evaluation == evaluation and k < len(r.completion)]
+    if not values:
+        return None
+    return Cell(statistics.fmean(values), statistics.stdev(values) if len(values) > 1 else None, len(values))
+
+
+def _row_cells(results: list[RunResult], table: PaperTable, row: PaperRow) -> list[tuple[Cell | None, float | None] | None]:
+    """Per table column: (ours, paper), or None where the row has no value in that column."""
+    out: list[tuple[Cell | None, float | None] | None] = []
+    for k in table.columns:
+        if k not in row.columns:
+            out.append(None)
+            continue
+        ours = cell(results, row.entry, row.evaluation, k) if row.entry else None
+        out.append((ours, row.paper[row.columns.index(k)]))
+    return out
+
+
+def _seeds_of(results: list[RunResult], row: PaperRow) -> list[int]:
+    return sorted({r.seed for r in results if r.entry == row.entry and r.evaluation == row.evaluation})
+
+
+def _status(results: list[RunResult], row: PaperRow) -> str:
+    if row.entry is None:
+        return row.note
+    seeds = _seeds_of(results, row)
+    return f"{len(seeds)} training seed(s): {', '.join(map(str, seeds))}" if seeds else "not run yet"
+
+
+def table_markdown(results: list[RunResult], table: PaperTable) -> str:
+    """One table: a row per paper row, each cell 'ours (paper)'."""
+    head = "| method | " + " | ".join(f"c{k}" for k in table.columns) + " | runs |"
+    lines = [f"**{table.caption}.** Each cell: ours, mean ± sd over training seeds (paper).", "", head,
+             "|" + "---|" * (len(table.columns) + 2)]
+    for row in table.rows:
+        cells = []
+        for c in _row_cells(results, table, row):
+            if c is None:
+                cells.append("")
+                continue
+            ours, paper = c
+            cells.append(f"{ours.text() if ours else '—'} ({'-' if paper is None else paper})")
+        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row)} |")
+    return "\n".join(lines)
+
+
+def plot_table(results: list[RunResult], table: PaperTable, path: Path) -> bool:
+    """Completion against corrections for the table's rows with a curve (ours solid with the
+    training-seed band, paper dashed); False when no row has more than one column."""
+    rows = [r for r in table.rows if len(r.columns) > 1]
+    if not rows:
+        return False
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6), dpi=110)
+    for i, row in enumerate(rows):
+        color = f"C{i}"
+        ax.plot(row.columns, [p if p is not None else float("nan") for p in row.paper], "--", color=color, alpha=0.7,
+                label=f"{row.label} (paper)")
+        cells = [cell(results, row.entry, row.evaluation, k) if row.entry else None for k in row.columns]
+        if any(c is not None for c in cells):
+            ks = [k for k, c in zip(row.columns, cells) if c is not None]
+            means = [c.mean for c in cells if c is not None]
+            sds = [c.std or 0.0 for c in cells if c is not None]
+            ax.plot(ks, means, "o-", color=color, label=f"{row.label} (ours)")
+            ax.fill_between(ks, [m - s for m, s in zip(means, sds)], [m + s for m, s in zip(means, sds)], color=color, alpha=0.15)
+    ax.set_xlabel("corrections")
+    ax.set_ylabel("completion")
+    ax.set_ylim(0, 1)
+    ax.set_xticks(table.columns)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title(table.caption.split(":")[0].split(",")[0] + (", " + table.key.split("-")[1] if "-" in table.key else ""),
+                 fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def provenance_markdown(results: list[RunResult], suite_out: Path) -> str:
+    """Per run: its dir, config, code commits, wall times and evaluation files."""
+    lines = ["| entry | seed | run dir (config: `config.yaml` there) | code commit(s) | train min | evaluations (file, min) |",
+             "|---|---|---|---|---|---|"]
+    runs = sorted({(r.entry, r.seed, r.run_dir) for r in results})
+    for entry, seed, run_dir in runs:
+        mine = [r for r in results if r.run_dir == run_dir]
+        evals = ", ".join(f"{r.evaluation}: `{r.eval_file.name}` ({r.eval_seconds / 60:.1f})" for r in mine)
+        first = mine[0]
+        commits = ", ".join(first.commits)
+        lines.append(f"| {entry} | {seed} | `{run_dir}` | {commits} | {first.train_seconds / 60:.1f} | {evals} |")
+    return "\n".join(lines)
+
+
+def evaluations_markdown(results: list[RunResult]) -> str:
+    """Each evaluation's settings, as every run recorded them (identical: ``_check_same_settings``)."""
+    lines = ["| evaluation | split | evaluation seeds | corrections | actions | tasks |", "|---|---|---|---|---|---|"]
+    for name in sorted({r.evaluation for r in results}):
+        s = dict(next(r for r in results if r.evaluation == name).settings)
+        lines.append(f"| {name} | {s['split']} | {', '.join(map(str, s['seeds']))} | {s['num_corrections']} | "
+                     f"{'greedy' if s['greedy_actions'] else 'sampled'} | {s['max_tasks'] or 'all'} |")
+    return "\n".join(lines)
+
+
+def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
+    """Write ``out/report.md`` (with PNG plots) and ``out/report.html`` (plots inline)."""
+    suite_out, out = Path(suite_out), Path(out)
+    results = collect_results(suite_out)
+    out.mkdir(parents=True, exist_ok=True)
+    parts, html_parts = [_INTRO.format(suite_out=suite_out)], [f"<p>{html.escape(_INTRO_HTML.format(suite_out=suite_out))}</p>"]
+    for table in PAPER_TABLES:
+        md = table_markdown(results, table)
+        png = out / f"{table.key}.png"
+        has_plot = plot_table(results, table, png)
+        parts += [f"## {table.caption.split(':')[0].split(',')[0]} ({table.key})", md]
+        html_parts += [f"<h2>{html.escape(table.key)}</h2>", _md_table_html(md)]
+        if has_plot:
+            parts.append(f"![{table.key}]({png.name})")
+            data = base64.b64encode(png.read_bytes()).decode()
+            html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
+    settings = evaluations_markdown(results)
+    prov = provenance_markdown(results, suite_out)
+    parts += ["## Evaluation settings", settings, "## Runs", prov]
+    html_parts += ["<h2>Evaluation settings</h2>", _md_table_html(settings), "<h2>Runs</h2>", _md_table_html(prov)]
+    md_path, html_path = out / "report.md", out / "report.html"
+    md_path.write_text("# The paper's experiments, reproduced\n\n" + "\n\n".join(parts) + "\n")
+    html_path.write_text("<!doctype html><meta charset='utf-8'><title>gpl-dist: the paper's experiments</title>"
+                         "<style>body{font-family:sans-serif;max-width:60em;margin:auto}td,th{border:1px solid #ccc;"
+                         "padding:2px 6px}table{border-collapse:collapse}</style>"
+                         "<h1>The paper's experiments, reproduced</h1>" + "\n".join(html_parts) + "\n")
+    return md_path, html_path
+
+
+_INTRO = ("Written by `gpl-dist suite report {suite_out}` from the runs' `eval*.json` files. Each cell: our mean "
+          "completion over training seeds (each seed's own value is its mean over the evaluation seeds, see Evaluation "
+          "settings), ± the standard deviation over training seeds, and the paper's number in parentheses. '—': not "
+          "run yet or not built; the last column says which.")
+_INTRO_HTML = _INTRO.replace("`", "")
+
+
+def _md_table_html(md: str) -> str:
+    """The Markdown table in ``md`` (its first paragraph kept as a caption) as HTML, escaped."""
+    lines = md.splitlines()
+    caption = [ln for ln in lines if ln and not ln.startswith("|")]
+    rows = [ln.strip("|").split("|") for ln in lines if ln.startswith("|") and not ln.startswith("|---")]
+    tags = ["th"] + ["td"] * len(rows)  # the first row is the header
+    body = "".join("<tr>" + "".join(f"<{tag}>{html.escape(c.strip().strip('`*'))}</{tag}>" for c in row) + "</tr>"
+                   for tag, row in zip(tags, rows))
+    return "".join(f"<p>{html.escape(c.replace('**', ''))}</p>" for c in caption) + f"<table>{body}</table>"

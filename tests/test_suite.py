@@ -1,0 +1,155 @@
+"""The suite runner and report: parse, run, skip, resume after a kill, refuse a changed entry,
+report the paper's tables from the eval files, and run entries as Ray tasks on a cluster."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from gpl_dist.cli import main
+from gpl_dist.config import ConfigError
+from gpl_dist.suite import load_suite, plan, run_state, run_suite
+from gpl_dist.suite_report import PAPER_TABLES, collect_results, write_report
+from tests.test_safety import _one_line_error
+
+REPO = Path(__file__).resolve().parent.parent
+SMOKE = REPO / "configs" / "multiroom-smoke.yaml"
+TINY = {"env.max_train_tasks": 4, "collection.num_corrections": 2, "training.num_epochs_per_round": 1,
+        "training.num_rounds": 2, "collection.num_workers": 1}
+
+
+def write_suite(path: Path, entries: dict, evaluations: dict | None = None) -> Path:
+    evaluations = evaluations or {"test": {"split": "test", "seeds": [0, 1], "num_corrections": 2,
+                                           "greedy_actions": False, "max_tasks": 4}}
+    path.write_text(json.dumps({"evaluations": evaluations, "entries": entries}))  # JSON is YAML
+    return path
+
+
+def entry(seeds=(0,), evaluations=("test",), **overrides) -> dict:
+    return {"base": str(SMOKE), "set": {**TINY, **overrides}, "seeds": list(seeds), "evaluations": list(evaluations)}
+
+
+def rounds_in(run_dir: Path) -> list[int]:
+    return [json.loads(line)["round"] for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"entries": {"a": {**entry(), "colour": 1}}}, "unknown key 'colour'"),
+    ({"entries": {"a": entry(evaluations=("nope",))}}, "unknown evaluation 'nope'"),
+    ({"entries": {"a": entry(**{"eval.split": "valid"})}}, "is the suite's to set"),
+    ({"entries": {"a": entry(seeds=(0, 0))}}, "seeds repeat"),
+    ({"entries": {"a": entry(**{"model.variant": "mivoa-typo"})}}, "model.variant must be one of"),
+    ({"entries": {"a/b": entry()}}, "names a folder"),
+    ({"evaluations": {"test": {"split": "test", "seeds": [0], "num_corrections": "5", "greedy_actions": False}}},
+     "expected int"),
+])
+def test_a_bad_suite_fails_in_one_line_before_anything_runs(tmp_path, capsys, change, needle):
+    spec = {"evaluations": {"test": {"split": "test", "seeds": [0], "num_corrections": 2, "greedy_actions": False}},
+            "entries": {"a": entry()}, **change}
+    path = tmp_path / "suite.yaml"
+    path.write_text(json.dumps(spec))
+    assert main(["suite", "run", str(path), "--out", str(tmp_path / "out"), "--serial"]) == 2
+    _one_line_error(capsys, needle)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_suite_runs_every_entry_once_and_a_rerun_skips_them(tmp_path):
+    path = write_suite(tmp_path / "suite.yaml", {"gpl": entry(seeds=(0, 1)), "instr": entry(**{"model.variant": "instruction_only"})})
+    suite = load_suite(path)
+    out = tmp_path / "out"
+    before = run_suite(suite, out, serial=True, progress=False)
+    assert [s for _, s in before] == ["new", "new", "new"]
+    for run in plan(suite, out):
+        assert run_state(run, suite) == "done"
+        assert rounds_in(run.run_dir) == [0, 1]
+        record = json.loads((run.run_dir / "suite-run.json").read_text())
+        assert record["entry"] == run.entry.name and record["seed"] == run.seed and record["commits"]
+        payload = json.loads((run.run_dir / record["evaluations"]["test"]["file"]).read_text())
+        assert payload["seeds"] == [0, 1] and payload["num_corrections"] == 2 and payload["max_tasks"] == 4
+    # the suite's settings went into each run's config: seed and evaluation
+    assert "seed: 1" in (out / "gpl" / "seed1" / "config.yaml").read_text()
+    stamp = (out / "gpl" / "seed0" / "metrics.jsonl").stat().st_mtime_ns
+    assert [s for _, s in run_suite(suite, out, serial=True, progress=False)] == ["done"] * 3
+    assert (out / "gpl" / "seed0" / "metrics.jsonl").stat().st_mtime_ns == stamp
+    # --only and --seeds select
+    assert [(r.entry.name, r.seed) for r in plan(suite, out, only=("gpl",), seeds=(1,))] == [("gpl", 1)]
+    with pytest.raises(ConfigError, match="no entry 'nope'"):
+        plan(suite, out, only=("nope",))
+
+
+def test_a_killed_suite_resumes_without_repeating_a_round(tmp_path):
+    path = write_suite(tmp_path / "suite.yaml", {"gpl": entry(**{"training.num_rounds": 4, "env.max_train_tasks": 24})})
+    out = tmp_path / "out"
+    run_dir = out / "gpl" / "seed0"
+    proc = subprocess.Popen([sys.executable, "-m", "gpl_dist.cli", "suite", "run", str(path), "--out", str(out),
+                             "--serial", "--no-progress"], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 300
+        while not (run_dir / "metrics.jsonl").exists() or not rounds_in(run_dir):
+            assert proc.poll() is None and time.monotonic() < deadline, "the suite ended before its first round"
+            time.sleep(0.2)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # our own child's process group
+        proc.wait()
+    suite = load_suite(path)
+    (run,) = plan(suite, out)
+    killed_after = rounds_in(run_dir)
+    assert run_state(run, suite) == "resume" and len(killed_after) < 4
+    run_suite(suite, out, serial=True, progress=False)
+    assert rounds_in(run_dir) == [0, 1, 2, 3]
+    assert run_state(run, suite) == "done"
+
+
+def test_a_run_made_by_another_version_of_its_entry_is_refused(tmp_path, capsys):
+    out = tmp_path / "out"
+    run_suite(load_suite(write_suite(tmp_path / "a.yaml", {"gpl": entry()})), out, serial=True, progress=False)
+    changed = write_suite(tmp_path / "b.yaml", {"gpl": entry(**{"training.learning_rate": 0.01})})
+    assert main(["suite", "run", str(changed), "--out", str(out), "--serial"]) == 2
+    _one_line_error(capsys, "another config than entry 'gpl'")
+
+
+def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_path):
+    evaluations = {"test": {"split": "test", "seeds": [0, 1], "num_corrections": 5, "greedy_actions": False, "max_tasks": 3},
+                   "test-c10": {"split": "test", "seeds": [0], "num_corrections": 10, "greedy_actions": False, "max_tasks": 2}}
+    path = write_suite(tmp_path / "suite.yaml", {
+        "multiroom-gpl": entry(seeds=(0, 1), evaluations=("test", "test-c10"), **{"training.num_rounds": 1}),
+        "multiroom-instruction": entry(**{"model.variant": "instruction_only", "training.num_rounds": 1})}, evaluations)
+    out = tmp_path / "out"
+    run_suite(load_suite(path), out, serial=True, progress=False)
+    assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
+    md = (tmp_path / "report" / "report.md").read_text()
+    for table in PAPER_TABLES:
+        for row in table.rows:
+            assert f"| {row.label} |" in md
+    # GPL's c1 cell is the mean and sd over training seeds of each run's eval.json completion
+    per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
+    gpl_row = next(line for line in md.splitlines() if line.startswith("| GPL |"))
+    assert f"{statistics.fmean(per_seed):.3f} ± {statistics.stdev(per_seed):.3f} (0.46)" in gpl_row
+    assert "2 training seed(s): 0, 1" in gpl_row
+    assert "MIVOA is not built yet" in md and "not run yet" in md
+    results = collect_results(out)
+    assert {(r.entry, r.evaluation) for r in results} == {("multiroom-gpl", "test"), ("multiroom-gpl", "test-c10"),
+                                                          ("multiroom-instruction", "test")}
+    html = (tmp_path / "report" / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 4 and "<table>" in html
+    assert (tmp_path / "report" / "table2.png").stat().st_size > 1000
+
+
+@pytest.mark.ray
+def test_a_suite_on_a_ray_cluster_runs_its_entries_as_tasks(tmp_path, ray_cluster):
+    path = write_suite(tmp_path / "suite.yaml", {"gpl": entry(seeds=(0, 1), **{"training.num_rounds": 1})})
+    suite = load_suite(path)
+    out = tmp_path / "out"
+    address = ray_cluster.get_runtime_context().gcs_address
+    run_suite(suite, out, address=address, progress=False)
+    for run in plan(suite, out):
+        assert run_state(run, suite) == "done" and rounds_in(run.run_dir) == [0]
