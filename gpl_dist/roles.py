@@ -158,19 +158,25 @@ class CorrectionOracle(Protocol):
 @runtime_checkable
 class Policy(Protocol):
     """Acts in many envs at once: the conditioning is encoded once per attempt, then one batched
-    forward per step (``workers.loop.Rollout`` drives it; ``GPLPolicy`` implements it)."""
+    forward per step (``workers.loop.Rollout`` drives it; ``GPLPolicy`` and ``MIVOAPolicy`` implement it)."""
 
     @property
     def uses_corrections(self) -> bool:
         """Whether later attempts are conditioned on earlier (trajectory, correction) pairs."""
         ...
 
+    @property
+    def uses_previous_step(self) -> bool:
+        """Whether ``action_logits`` reads the step before each state (MIVOA does, GPL does not)."""
+        ...
+
     def encode_conditioning(self, cond: Any) -> Any:
         """``(A, D)`` tensor: the instruction and correction history of each attempt row of ``cond``."""
         ...
 
-    def action_logits(self, obs: Any, z: Any) -> Any:
-        """``(B, num_actions)`` logits for observations ``(B, *obs_shape)`` under per-state conditioning ``z``."""
+    def action_logits(self, obs: Any, z: Any, previous: Any = None) -> Any:
+        """``(B, num_actions)`` logits for observations ``(B, *obs_shape)`` under per-state conditioning
+        ``z``; ``previous`` (``gpl_dist.models.mivoa.PreviousStep``) when ``uses_previous_step``."""
         ...
 
 

@@ -37,7 +37,8 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, log=pri
         r = too_big[0]
         raise SuiteError(f"{r.entry.name} seed {r.seed} needs {cpus_per_run(r, suite)} CPUs (a task and its rollout "
                          f"actors) and the cluster has {cluster_cpus}: lower collection.num_workers in the entry")
-    queue, pending, failed, free = list(runs), {}, [], cluster_cpus
+    queue, failed, free = list(runs), [], cluster_cpus
+    pending: dict[ray.ObjectRef, SuiteRun] = {}
     while queue or pending:
         while queue and cpus_per_run(queue[0], suite) <= free:
             run = queue.pop(0)

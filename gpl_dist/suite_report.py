@@ -18,6 +18,7 @@ import json
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from gpl_dist.errors import RunDirError
 
@@ -49,14 +50,13 @@ class PaperTable:
 
 
 _C05 = (0, 1, 2, 3, 4, 5)
-_MIVOA = "MIVOA is not built yet (issue 18, part 1)"
 PAPER_TABLES = (
     PaperTable("table1-multiroom", "Table 1, multi-room: mean completion on the test tasks (baselines act without "
                "corrections: their one number is the first attempt's)", _C05, (
         PaperRow("Instruction", "multiroom-instruction", "test", (0,), (0.075,)),
         PaperRow("Full Info", "multiroom-full-info", "test", (0,), (0.73,)),
-        PaperRow("MIVOA (Instr.)", None, "test", (0,), (0.067,), _MIVOA),
-        PaperRow("MIVOA (Full Info)", None, "test", (0,), (0.63,), _MIVOA),
+        PaperRow("MIVOA (Instr.)", "multiroom-mivoa-instruction", "test", (0,), (0.067,)),
+        PaperRow("MIVOA (Full Info)", "multiroom-mivoa-full-info", "test", (0,), (0.63,)),
         PaperRow("GPL", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
     )),
     PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
@@ -64,7 +64,7 @@ PAPER_TABLES = (
         PaperRow("Instruction", "relocation-instruction", "test", (0,), (0.64,)),
         PaperRow("Full Info", None, "test", (0,), (0.96,),
                  "the paper's oracle gets the block and the goal's coordinates as numbers; not built yet (issue 18)"),
-        PaperRow("MIVOA (Instr.)", None, "test", (0,), (0.65,), _MIVOA),
+        PaperRow("MIVOA (Instr.)", "relocation-mivoa-instruction", "test", (0,), (0.65,)),
         PaperRow("MIVOA (Full Info)", None, "test", (0,), (None,), "not in the paper either"),
         PaperRow("GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),
     )),
@@ -87,7 +87,7 @@ PAPER_TABLES = (
     PaperTable("table5", "Table 5, multi-room, objects held out of training (tested on tasks whose true object "
                "is a held-out colour-shape combination)", _C05, (
         PaperRow("Full Info", "multiroom-heldout-full-info", "heldout", (0,), (0.57,)),
-        PaperRow("MIVOA (Full Info)", None, "heldout", (0,), (0.62,), _MIVOA),
+        PaperRow("MIVOA (Full Info)", "multiroom-heldout-mivoa-full-info", "heldout", (0,), (0.62,)),
         PaperRow("GPL", "multiroom-heldout-gpl", "heldout", _C05, (0.073, 0.44, 0.58, 0.65, 0.73, 0.75)),
     )),
 )
@@ -255,7 +255,7 @@ def evaluations_markdown(results: list[RunResult]) -> str:
     """Each evaluation's settings, as every run recorded them (identical: ``_check_same_settings``)."""
     lines = ["| evaluation | split | evaluation seeds | corrections | actions | tasks |", "|---|---|---|---|---|---|"]
     for name in sorted({r.evaluation for r in results}):
-        s = dict(next(r for r in results if r.evaluation == name).settings)
+        s: dict[str, Any] = dict(next(r for r in results if r.evaluation == name).settings)
         lines.append(f"| {name} | {s['split']} | {', '.join(map(str, s['seeds']))} | {s['num_corrections']} | "
                      f"{'greedy' if s['greedy_actions'] else 'sampled'} | {s['max_tasks'] or 'all'} |")
     return "\n".join(lines)

@@ -7,12 +7,14 @@ so each attempt's instruction and correction history is encoded once per batch.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
 
 from gpl_dist.models.gpl import Conditioning
+from gpl_dist.models.mivoa import PreviousStep
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,9 @@ class TensorView:
         correction_ids: int64 ``(A, L)``.
         context_rows: int64 ``(A, K)`` rows of the earlier attempts, -1 padded.
         trajectories: ``(A, S, *O)`` subsampled attempts.
+        previous_rows: int64 ``(N,)`` row of the state before each one in its attempt (its own
+            row at t = 0); None when the view has no timesteps.
+        previous_actions: int64 ``(N,)`` the action executed in that state; -1 at t = 0.
     """
 
     observations: torch.Tensor
@@ -39,6 +44,8 @@ class TensorView:
     context_rows: torch.Tensor
     trajectories: torch.Tensor
     expert_probs: torch.Tensor | None = None
+    previous_rows: torch.Tensor | None = None
+    previous_actions: torch.Tensor | None = None
 
     @classmethod
     def from_view(cls, view) -> "TensorView":
@@ -47,15 +54,17 @@ class TensorView:
         probs = getattr(view, "expert_probs", None)
         if probs is not None and bool((probs.max(axis=1) == 1.0).all()):
             probs = None
+        previous = previous_steps(view) if hasattr(view, "timesteps") and hasattr(view, "actions") else (None, None)
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
-                   t(view.trajectories), None if probs is None else t(probs))
+                   t(view.trajectories), None if probs is None else t(probs),
+                   *(None if x is None else torch.from_numpy(x) for x in previous))
 
     def to(self, device: torch.device) -> "TensorView":
         """This view on ``device`` (one copy of every tensor; itself when already there)."""
         if self.observations.device == device:
             return self
-        return TensorView(**{k: None if x is None else x.to(device) for k, x in self._tensors().items()})
+        return dataclasses.replace(self, **{k: x.to(device) for k, x in self._tensors().items() if x is not None})
 
     @property
     def nbytes(self) -> int:
@@ -72,6 +81,12 @@ class TensorView:
     def targets(self, idx: torch.Tensor) -> torch.Tensor:
         """The training target of states ``idx``: ``(B, A)`` probabilities, or ``(B,)`` actions."""
         return self.expert_actions[idx] if self.expert_probs is None else self.expert_probs[idx]
+
+    def previous(self, idx: torch.Tensor) -> PreviousStep:
+        """The step before each of states ``idx`` (for ``MIVOAPolicy``)."""
+        if self.previous_rows is None or self.previous_actions is None:
+            raise ValueError("this view has no timesteps: the previous step of a state is unknown")
+        return PreviousStep(self.observations[self.previous_rows[idx]], self.previous_actions[idx])
 
     def batch(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor]:
         """``(observations, labels, conditioning, attempt_rows_in_conditioning)`` of states ``idx``."""
@@ -90,3 +105,18 @@ class TensorView:
             slots=slots,
         )
         return self.observations[idx], self.expert_actions[idx], cond, inverse
+
+
+def previous_steps(view) -> tuple[np.ndarray, np.ndarray]:
+    """``(previous_rows, previous_actions)`` of every state of ``view`` (see ``TensorView``): found
+    by sorting on (attempt, t), so they hold in whatever order the view lists its states."""
+    rows, t = np.asarray(view.attempt_rows), np.asarray(view.timesteps)
+    order = np.lexsort((t, rows))
+    prev = np.arange(rows.size, dtype=np.int64)
+    actions = np.full(rows.size, -1, dtype=np.int64)
+    follows = np.zeros(rows.size, dtype=bool)
+    if rows.size > 1:
+        follows[1:] = (rows[order[1:]] == rows[order[:-1]]) & (t[order[1:]] == t[order[:-1]] + 1)
+    prev[order[follows]] = order[np.flatnonzero(follows) - 1]
+    actions[order[follows]] = np.asarray(view.actions)[order[np.flatnonzero(follows) - 1]]
+    return prev, actions

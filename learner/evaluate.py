@@ -26,7 +26,7 @@ from gpl_dist.config import MAX_CORRECTIONS, RunConfig, config_from_dict
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
-from gpl_dist.models.gpl import GPLPolicy, build_model_from_config
+from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, PolicyNetwork, build_model_from_config
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import LATEST, load_checkpoint, load_model_state
@@ -55,7 +55,7 @@ class EvalResult:
     seconds: float
 
 
-def evaluate_policy(cfg: RunConfig, model: GPLPolicy, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
+def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
                     max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
                     tasks: tuple[int, ...] | None = None) -> EvalResult:
     """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them).
@@ -71,7 +71,7 @@ def evaluate_policy(cfg: RunConfig, model: GPLPolicy, *, num_corrections: int, s
         model = copy.deepcopy(model).cpu()  # rollouts run on the CPU, beside the envs
     rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
                       end_aligned=cfg.model.trajectory_ends_at_last_state,
-                      full_information=cfg.model.variant == "full_information")
+                      full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
     was_training = model.training
     model.eval()
     start = time.perf_counter()

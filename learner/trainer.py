@@ -41,6 +41,7 @@ from torch import nn
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import ConfigError, TrainingConfig
 from gpl_dist.models.gpl import Conditioning
+from gpl_dist.models.mivoa import PreviousStep
 from learner.batches import TensorView
 
 
@@ -300,17 +301,20 @@ class Learner:
         return tv.to(self.device) if tv.nbytes < free_bytes // 2 else tv
 
     def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning,
-                                                                  torch.Tensor, torch.Tensor]:
-        """The batch of states ``idx``, on the learner's device."""
+                                                                  torch.Tensor, torch.Tensor, PreviousStep | None]:
+        """The batch of states ``idx``, on the learner's device (with each state's previous step
+        for a model that reads it)."""
         obs, labels, cond, rows = tv.batch(idx)
         dev = self.device
-        return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev)
+        previous = tv.previous(idx).to(dev) if self.model.uses_previous_step else None
+        return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev), previous
 
-    def _train_on(self, obs, labels, cond, rows, targets, share: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+    def _train_on(self, obs, labels, cond, rows, targets, previous=None,
+                  share: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """One step on a batch; ``share`` is this learner's fraction of a group's global batch.
         Returns the batch's mean loss and its number of correct argmax actions, as 0-d tensors on
         the learner's device."""
-        logits = self.model(obs, cond, rows)
+        logits = self.model(obs, cond, rows, previous)
         loss = nn.functional.cross_entropy(logits, targets)
         self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
         (loss * share if share != 1.0 else loss).backward()

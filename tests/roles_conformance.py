@@ -16,6 +16,7 @@ from gpl_dist.experts.multiroom import MultiRoomExpert
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
 from gpl_dist.models.gpl import GPLPolicy
+from gpl_dist.models.mivoa import MIVOAPolicy
 from learner.parallel import DataParallelLearner
 from learner.remote import RemoteLearner
 from learner.trainer import Learner
@@ -39,6 +40,10 @@ def oracles(a: MultiRoomCorrector, b: RelocationCorrector) -> tuple[roles.Correc
 
 
 def policy(p: GPLPolicy) -> roles.Policy:
+    return p
+
+
+def mivoa_policy(p: MIVOAPolicy) -> roles.Policy:
     return p
 
 

@@ -4,8 +4,10 @@ import torch
 
 from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import Conditioning, build_model, load_numpy_state, state_dict_to_numpy
+from gpl_dist.models.mivoa import PreviousStep
 
-VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction"]
+VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
+            "mivoa", "mivoa_full_information"]
 
 
 def random_states(domain, shape, g):
@@ -41,7 +43,8 @@ def test_forward_shapes(domain_name, variant):
     model = build_model(d, variant, seed=0).eval()
     cond = random_conditioning(d, a=5, k=4)
     rows = torch.tensor([0, 0, 1, 4, 3, 2, 2])
-    logits = model(random_obs(d, 7), cond, rows)
+    previous = PreviousStep(random_obs(d, 7, seed=2), torch.tensor([-1, 0, 1, 2, -1, 1, 0])) if model.uses_previous_step else None
+    logits = model(random_obs(d, 7), cond, rows, previous)
     assert logits.shape == (7, d.num_actions) and torch.isfinite(logits).all()
     z = model.encode_conditioning(cond)
     assert z.shape == (5, model.conditioning_dim)
@@ -236,3 +239,33 @@ def test_policy_batchnorm_is_opt_in_and_acts_per_state_at_rollout_time():
         together = normed(obs, cond, rows)
         alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(48)])
     torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+def test_mivoa_reads_the_instruction_the_previous_state_and_the_previous_action(domain_name):
+    """Each of MIVOA's three inputs changes its logits; the instruction's vector is the LSTM's
+    state after its last word (padding skipped); it needs the previous step to act."""
+    d = get_domain(domain_name)
+    model = build_model(d, "mivoa", seed=0).eval()
+    assert not model.uses_corrections and model.uses_previous_step
+    vocab = d.vocabulary
+    words = torch.from_numpy(np.random.default_rng(0).integers(2, vocab.size, (3, 5)))
+    ids = torch.full((3, vocab.max_tokens), vocab.pad_id, dtype=torch.long)
+    ids[:, :5] = words
+    cond = _replace(random_conditioning(d, a=3, k=1), instruction_ids=ids)
+    rows, obs = torch.tensor([0, 1, 2]), random_obs(d, 3)
+    prev = PreviousStep(random_obs(d, 3, seed=5), torch.tensor([0, 1, 2]))
+    other_ids = ids.clone()
+    other_ids[:, 4] = (ids[:, 4] + 1 - 2) % (vocab.size - 2) + 2  # another word, never padding
+    with torch.no_grad():
+        base = model(obs, cond, rows, prev)
+        changed = [model(obs, cond, rows, PreviousStep(random_obs(d, 3, seed=6), prev.actions)),
+                   model(obs, cond, rows, PreviousStep(prev.observations, torch.full((3,), -1))),
+                   model(obs, _replace(cond, instruction_ids=other_ids), rows, prev)]
+        lstm = model.instruction
+        expected = lstm.lstm(lstm.embedding(words))[0][:, -1]
+        torch.testing.assert_close(model.encode_conditioning(cond), expected)
+    for other in changed:
+        assert (other - base).abs().max() > 1e-5
+    with pytest.raises(ValueError, match="previous"):
+        model(obs, cond, rows)

@@ -28,6 +28,8 @@ def test_every_implementation_is_its_role(tmp_path):
     assert all(isinstance(o, roles.CorrectionOracle) for o in oracles)
     model = build_model(mr, seed=0)
     assert isinstance(rc.policy(model), roles.Policy)
+    mivoa = build_model(mr, "mivoa", seed=0)
+    assert isinstance(rc.mivoa_policy(mivoa), roles.Policy)  # type: ignore[arg-type]
     assert isinstance(rc.rollout_worker(RolloutWorker(mr, RolloutSettings(), worker_id="t")), roles.RolloutWorker)
     serial = SerialCollector("multiroom", RolloutSettings(), str(tmp_path / "b"), "r")
     assert isinstance(serial, roles.Collector)

@@ -1,5 +1,7 @@
 """The learner's optimiser over flattened parameters, its batch prefetching and its determinism."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -158,7 +160,7 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
     assert tv.to(torch.device("cpu")) is tv
     assert tv.nbytes == sum(getattr(tv, f).nbytes for f in ("observations", "expert_actions", "attempt_rows",
                                                              "instruction_ids", "correction_ids", "context_rows",
-                                                             "trajectories"))
+                                                             "trajectories", "previous_rows", "previous_actions"))
     results = {}
     for device in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
         learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg(device=device, num_epochs_per_round=2))
@@ -170,3 +172,40 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
         assert accuracy == pytest.approx(results["cpu"][1], abs=0.02)
         for k, w in weights.items():
             np.testing.assert_allclose(w, results["cpu"][2][k], rtol=0, atol=2e-3, err_msg=f"{device}: {k}")
+
+
+def test_previous_steps_of_a_view_follow_each_attempt(tmp_path):
+    view = _view(tmp_path, rounds=2)
+    tv = TensorView.from_view(view)
+    prev, actions = tv.previous_rows.numpy(), tv.previous_actions.numpy()
+    t, rows = view.timesteps, view.attempt_rows
+    first = t == 0
+    assert (prev[first] == np.flatnonzero(first)).all() and (actions[first] == -1).all()
+    later = np.flatnonzero(~first)
+    assert later.size and (rows[prev[later]] == rows[later]).all() and (t[prev[later]] == t[later] - 1).all()
+    assert (actions[later] == view.actions[prev[later]]).all()
+    shuffled = np.random.default_rng(0).permutation(view.num_tuples)  # any order of states gives the same steps
+    idx = torch.from_numpy(shuffled[:50])
+    step = tv.previous(idx)
+    assert torch.equal(step.observations, tv.observations[tv.previous_rows[idx]])
+
+
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+def test_mivoa_trains_and_is_evaluated_through_the_one_rollout_loop(tmp_path, domain_name):
+    """MIVOA (instruction and full information) collects, trains and meta-tests serially: one
+    attempt per task (it takes no corrections), the previous step read in collection and training."""
+    from gpl_dist.config import load_config
+    from learner.driver import run_training
+    from learner.evaluate import evaluate_run
+
+    base = "multiroom-smoke.yaml" if domain_name == "multiroom" else "relocation.yaml"
+    for variant in ("mivoa", "mivoa_full_information"):
+        cfg = load_config(Path(__file__).resolve().parent.parent / "configs" / base, {
+            "model.variant": variant, "training.num_rounds": "2", "env.max_train_tasks": "3", "collection.num_workers": "1",
+            "training.num_epochs_per_round": "1", "eval.max_tasks": "2", "eval.seeds": "[0]", "buffer.capacity_tuples": "100000"})
+        run = tmp_path / variant
+        result = run_training(cfg, run, serial=True, progress=False)
+        assert [m.round_index for m in result.history] == [0, 1] and all(np.isfinite(m.loss) for m in result.history)
+        assert all(len(m.completion_by_corrections) == 1 for m in result.history)  # one attempt per task
+        evaluation, _ = evaluate_run(run)
+        assert evaluation.num_tasks == 2 and len(evaluation.completion) >= 1

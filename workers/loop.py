@@ -24,7 +24,8 @@ from typing import Any, Union
 import numpy as np
 import torch
 
-from gpl_dist.models.gpl import Conditioning, GPLPolicy
+from gpl_dist.models.gpl import Conditioning, PolicyNetwork
+from gpl_dist.models.mivoa import PreviousStep
 from gpl_dist.records import Attempt, Correction
 from gpl_dist.roles import CorrectionOracle, DomainSpec, Expert, trajectory_times
 from gpl_dist.seeding import derive_rng, derive_seed
@@ -115,7 +116,7 @@ class Rollout:
         full_information: condition on the oracle's full-information text instead of the instruction.
     """
 
-    def __init__(self, domain: DomainSpec, policy: GPLPolicy, corrections: CorrectionSource,
+    def __init__(self, domain: DomainSpec, policy: PolicyNetwork, corrections: CorrectionSource,
                  expert: Expert | None = None, *, greedy: bool = False, end_aligned: bool = False,
                  full_information: bool = False):
         self.domain = domain
@@ -201,7 +202,7 @@ class Rollout:
         probs = [zero_probs] * m
         for t in range(steps):
             with torch.inference_mode():
-                logits = self.policy.action_logits(torch.from_numpy(buffers.obs[:, t]), z)
+                logits = self.policy.action_logits(torch.from_numpy(buffers.obs[:, t]), z, self._previous(buffers, t))
             actions = sample_actions(logits, action_rng, self.greedy)
             buffers.actions[:, t] = actions
             for j, a in enumerate(actions.tolist()):
@@ -225,6 +226,14 @@ class Rollout:
             if t + 1 < steps:
                 np.stack(last_obs, out=buffers.obs[:, t + 1])
         return infos
+
+    def _previous(self, buffers: _AttemptBuffers, t: int) -> PreviousStep | None:
+        """The step before ``t`` for a policy that reads it (``PreviousStep``), else None."""
+        if not self.policy.uses_previous_step:
+            return None
+        if t == 0:
+            return PreviousStep(torch.from_numpy(buffers.obs[:, 0]), torch.full((buffers.obs.shape[0],), -1, dtype=torch.long))
+        return PreviousStep(torch.from_numpy(buffers.obs[:, t - 1]), torch.from_numpy(buffers.actions[:, t - 1]))
 
     def _finish_attempt(self, batch: _Batch, active: np.ndarray, buffers: _AttemptBuffers, infos: list[dict],
                         k: int, reset_seeds: list[int], *, seed: int, split: str, last: bool,

@@ -28,7 +28,7 @@ from gpl_dist.config import CollectionConfig, EnvConfig, ModelConfig
 from gpl_dist.corrections import make_corrector
 from gpl_dist.faults import fault_point
 from gpl_dist.metrics import completion_by_corrections
-from gpl_dist.models.gpl import GPLPolicy, build_model_from_config, load_numpy_state
+from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, PolicyNetwork, build_model_from_config, load_numpy_state
 from gpl_dist.records import Attempt, WorkUnit
 from gpl_dist.roles import DomainSpec
 from workers.loop import Rollout, TaskFailure, sample_actions  # noqa: F401 - re-exported
@@ -77,14 +77,14 @@ class RolloutWorker:
         self.settings = settings
         self.writer = writer
         self.worker_id = worker_id
-        self.model: GPLPolicy = build_model_from_config(domain, settings.model)
+        self.model: PolicyNetwork = build_model_from_config(domain, settings.model)
         self.model.eval()
         self.policy_version = -1
         expert = domain.experts[settings.env.expert]() if settings.label_states else None
         self.rollout = Rollout(domain, self.model, make_corrector(domain.name, settings.env.correction_kind), expert,
                                greedy=settings.collection.greedy_actions,
                                end_aligned=settings.model.trajectory_ends_at_last_state,
-                               full_information=settings.model.variant == "full_information")
+                               full_information=settings.model.variant in FULL_INFORMATION_VARIANTS)
         self.failures: list[TaskFailure] = []
 
     def set_weights(self, weights: dict[str, np.ndarray], policy_version: int) -> None:

@@ -18,11 +18,13 @@ once per attempt in a batch (``Conditioning`` holds one row per distinct attempt
 Variants (``ModelConfig.variant``): ``gpl`` (the paper's model), ``instruction_only`` (no correction
 module), ``full_information`` (the instruction is the full-information text, no corrections),
 ``no_instruction``, ``no_trajectory`` and ``latest_correction`` (only the newest pair) ablations.
+``mivoa`` and ``mivoa_full_information`` build another network, ``gpl_dist.models.mivoa``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Union
 
 import numpy as np
 import torch
@@ -31,7 +33,12 @@ from torch import nn
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec
 
+if TYPE_CHECKING:
+    from gpl_dist.models.mivoa import MIVOAPolicy
+
 VARIANTS_WITHOUT_CORRECTIONS = ("instruction_only", "full_information")
+#: Variants conditioned on the oracle's full-information text in place of the instruction.
+FULL_INFORMATION_VARIANTS = ("full_information", "mivoa_full_information")
 
 
 @dataclass(frozen=True)
@@ -336,6 +343,9 @@ class GPLPolicy(nn.Module):
         head, head_dim = mlp(sizes.policy_mlp, self.state.out_dim + self.conditioning_dim, batchnorm=policy_batchnorm)
         self.head = nn.Sequential(head, nn.Linear(head_dim, domain.num_actions))
 
+    #: Whether ``action_logits`` needs each state's ``PreviousStep`` (``gpl_dist.models.mivoa``): no.
+    uses_previous_step = False
+
     @property
     def uses_corrections(self) -> bool:
         return self.variant not in VARIANTS_WITHOUT_CORRECTIONS
@@ -361,27 +371,36 @@ class GPLPolicy(nn.Module):
         counts = mask.sum(1, keepdim=True).clamp(min=1).to(pairs.dtype)
         return torch.cat([z_im, gathered.sum(1) / counts], dim=1)
 
-    def action_logits(self, obs: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``."""
+    def action_logits(self, obs: torch.Tensor, z: torch.Tensor, previous=None) -> torch.Tensor:
+        """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``
+        (``previous``, the step before each state, is for policies that use it; GPL does not)."""
         return self.head(torch.cat([self.state(obs), z], dim=1))
 
-    def forward(self, obs: torch.Tensor, cond: Conditioning, attempt_rows: torch.Tensor) -> torch.Tensor:
+    def forward(self, obs: torch.Tensor, cond: Conditioning, attempt_rows: torch.Tensor, previous=None) -> torch.Tensor:
         """Logits for states ``obs (B, *O)``; ``attempt_rows (B,)`` picks each state's row of ``cond``."""
         z = self.encode_conditioning(cond)
         return self.action_logits(obs, z[attempt_rows])
 
 
+#: The networks ``build_model`` makes (``gpl_dist.roles.Policy``).
+PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
+
+
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
-                policy_batchnorm: bool = False) -> GPLPolicy:
-    """A freshly initialised model (deterministic when ``seed`` is given)."""
+                policy_batchnorm: bool = False) -> "PolicyNetwork":
+    """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
+    ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``."""
+    from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
+
+    cls: type[GPLPolicy] | type[MIVOAPolicy] = MIVOAPolicy if variant in MIVOA_VARIANTS else GPLPolicy
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm)
-    return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm)
+            return cls(domain, variant, embedding_dim, policy_batchnorm)
+    return cls(domain, variant, embedding_dim, policy_batchnorm)
 
 
-def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = None) -> GPLPolicy:
+def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = None) -> "PolicyNetwork":
     """The model a run's ``model`` section (``gpl_dist.config.ModelConfig``) describes: the one
     mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
