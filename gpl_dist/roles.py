@@ -64,6 +64,10 @@ class DomainSpec:
             hold (the model one-hot encodes them); None for continuous observations.
         splits: task ids of each split, given inline; None reads the versioned file
             ``gpl_dist/splits/<name>.json`` (``gpl_dist.splits``).
+        full_information_values: for a domain whose full information is numbers (relocation: the
+            goal block and the target's coordinates), ``f(task_id)`` -> float32 ``(F,)``; the
+            ``full_information`` variant then reads them through an MLP in place of the
+            full-information text. None: the full information is the oracle's text.
     """
 
     name: str
@@ -85,6 +89,7 @@ class DomainSpec:
     paper_baselines: Mapping[str, float] = field(default_factory=dict)
     obs_categories: tuple[int, ...] | None = None
     splits: Mapping[str, tuple[int, ...]] | None = None
+    full_information_values: Callable[[int], np.ndarray] | None = None
 
     @property
     def trajectory_samples(self) -> int:

@@ -62,8 +62,7 @@ PAPER_TABLES = (
     PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
                "initial block distance)", _C05, (
         PaperRow("Instruction", "relocation-instruction", "test", (0,), (0.64,)),
-        PaperRow("Full Info", None, "test", (0,), (0.96,),
-                 "the paper's oracle gets the block and the goal's coordinates as numbers; not built yet (issue 18)"),
+        PaperRow("Full Info", "relocation-full-info", "test", (0,), (0.96,)),
         PaperRow("MIVOA (Instr.)", "relocation-mivoa-instruction", "test", (0,), (0.65,)),
         PaperRow("MIVOA (Full Info)", None, "test", (0,), (None,), "not in the paper either"),
         PaperRow("GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, fields
+from typing import Callable
 
 import numpy as np
 import torch
@@ -34,6 +35,9 @@ class TensorView:
         previous_rows: int64 ``(N,)`` row of the state before each one in its attempt (its own
             row at t = 0); None when the view has no timesteps.
         previous_actions: int64 ``(N,)`` the action executed in that state; -1 at t = 0.
+        attempt_task_ids: int64 ``(A,)`` each attempt's task; None when the view has none.
+        instruction_values: float32 ``(A, F)`` numeric full information of each attempt
+            (``with_full_information``), or None.
     """
 
     observations: torch.Tensor
@@ -46,6 +50,8 @@ class TensorView:
     expert_probs: torch.Tensor | None = None
     previous_rows: torch.Tensor | None = None
     previous_actions: torch.Tensor | None = None
+    attempt_task_ids: torch.Tensor | None = None
+    instruction_values: torch.Tensor | None = None
 
     @classmethod
     def from_view(cls, view) -> "TensorView":
@@ -54,11 +60,23 @@ class TensorView:
         probs = getattr(view, "expert_probs", None)
         if probs is not None and bool((probs.max(axis=1) == 1.0).all()):
             probs = None
-        previous = previous_steps(view) if hasattr(view, "timesteps") and hasattr(view, "actions") else (None, None)
+        prev_rows, prev_actions = (previous_steps(view) if hasattr(view, "timesteps") and hasattr(view, "actions")
+                                   else (None, None))
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
-                   t(view.trajectories), None if probs is None else t(probs),
-                   *(None if x is None else torch.from_numpy(x) for x in previous))
+                   t(view.trajectories), expert_probs=None if probs is None else t(probs),
+                   previous_rows=None if prev_rows is None else torch.from_numpy(prev_rows),
+                   previous_actions=None if prev_actions is None else torch.from_numpy(prev_actions),
+                   attempt_task_ids=t(view.task_id).long() if hasattr(view, "task_id") else None)
+
+    def with_full_information(self, values_of_task: Callable[[int], np.ndarray]) -> "TensorView":
+        """This view with each attempt's numeric full information, ``values_of_task(task_id)``."""
+        if self.attempt_task_ids is None:
+            raise ValueError("this view has no task ids: the full information of its attempts is unknown")
+        tasks = self.attempt_task_ids.cpu().numpy()
+        table = {t: values_of_task(int(t)) for t in np.unique(tasks)}
+        values = torch.from_numpy(np.stack([table[t] for t in tasks]) if tasks.size else np.zeros((0, 0), np.float32))
+        return dataclasses.replace(self, instruction_values=values.to(self.observations.device))
 
     def to(self, device: torch.device) -> "TensorView":
         """This view on ``device`` (one copy of every tensor; itself when already there)."""
@@ -103,6 +121,7 @@ class TensorView:
             trajectories=self.trajectories[earlier],
             correction_ids=self.correction_ids[earlier],
             slots=slots,
+            instruction_values=None if self.instruction_values is None else self.instruction_values[uniq],
         )
         return self.observations[idx], self.expert_actions[idx], cond, inverse
 

@@ -200,7 +200,7 @@ class Learner:
         return state_dict_to_numpy(self.model)
 
     def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:
-        tv = self._on_device(view if isinstance(view, TensorView) else TensorView.from_view(view))
+        tv = self._on_device(self._with_inputs(view if isinstance(view, TensorView) else TensorView.from_view(view)))
         n = tv.num_states
         start = time.perf_counter()
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0
@@ -291,6 +291,16 @@ class Learner:
         """One gradient step on states ``idx``; returns (loss, number of correct argmax actions)."""
         loss, hits = self._train_on(*self._gather(tv, idx))
         return float(loss), int(hits)
+
+    def _with_inputs(self, tv: TensorView) -> TensorView:
+        """The view with what this model reads beyond the buffer (numeric full information)."""
+        if getattr(self.model, "numeric_full_information", False) and tv.instruction_values is None:
+            from gpl_dist.domains import get_domain
+
+            values_of_task = get_domain(str(self.model.domain_name)).full_information_values
+            assert values_of_task is not None  # the model is numeric only for such a domain
+            return tv.with_full_information(values_of_task)
+        return tv
 
     def _on_device(self, tv: TensorView) -> TensorView:
         """The view in the memory of the learner's GPU when it takes under half of what is free there

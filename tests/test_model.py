@@ -24,11 +24,15 @@ def random_conditioning(domain, a, k, seed=0):
     traj = random_states(domain, (a * k, domain.trajectory_samples), g)
     filled = np.arange(k)[None, :] < g.integers(0, k + 1, (a, 1))
     slots = np.where(filled, np.arange(a * k).reshape(a, k), -1)
+    values = None
+    if domain.full_information_values is not None:
+        values = torch.from_numpy(np.stack([domain.full_information_values(int(t)) for t in g.integers(0, 100, a)]))
     return Conditioning(
         instruction_ids=torch.from_numpy(g.integers(2, vocab.size, (a, vocab.max_tokens))),
         trajectories=torch.from_numpy(traj),
         correction_ids=torch.from_numpy(g.integers(2, vocab.size, (a * k, vocab.max_tokens))),
         slots=torch.from_numpy(slots),
+        instruction_values=values,
     )
 
 
@@ -57,7 +61,7 @@ def _z(model, cond):
 
 def _replace(cond, **kw):
     fields = dict(instruction_ids=cond.instruction_ids, trajectories=cond.trajectories,
-                  correction_ids=cond.correction_ids, slots=cond.slots)
+                  correction_ids=cond.correction_ids, slots=cond.slots, instruction_values=cond.instruction_values)
     fields.update(kw)
     return Conditioning(**fields)
 
@@ -269,3 +273,29 @@ def test_mivoa_reads_the_instruction_the_previous_state_and_the_previous_action(
         assert (other - base).abs().max() > 1e-5
     with pytest.raises(ValueError, match="previous"):
         model(obs, cond, rows)
+
+
+def test_relocation_full_information_reads_the_block_and_the_target_as_numbers():
+    """The paper's relocation oracle gets which block to move and the goal's coordinates: numbers
+    through an MLP, not words; other domains and variants keep text."""
+    from gpl_dist.envs.relocation import make_task
+
+    d = get_domain("relocation")
+    task = make_task(7)
+    values = d.full_information_values(7)
+    assert values.dtype == np.float32 and values.shape == (5,)
+    assert values[:3].argmax() == task.block and values[:3].sum() == 1 and tuple(values[3:]) == pytest.approx(task.target)
+    model = build_model(d, "full_information", seed=0).eval()
+    assert model.numeric_full_information
+    assert not build_model(d, "gpl").numeric_full_information
+    assert not build_model(get_domain("multiroom"), "full_information").numeric_full_information
+    cond = random_conditioning(d, a=2, k=0)
+    moved = cond.instruction_values.clone()
+    moved[:, 3] += 0.3  # another target x
+    with torch.no_grad():
+        z = model.encode_conditioning(cond)
+        assert not torch.allclose(z, model.encode_conditioning(_replace(cond, instruction_values=moved)))
+        other_words = _replace(cond, instruction_ids=torch.roll(cond.instruction_ids, 1, dims=1))
+        torch.testing.assert_close(z, model.encode_conditioning(other_words))  # the text is not read
+    with pytest.raises(ValueError, match="reads numbers"):
+        model.encode_conditioning(_replace(cond, instruction_values=None))

@@ -136,7 +136,7 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     gpl_row = next(line for line in md.splitlines() if line.startswith("| GPL |"))
     assert f"{statistics.fmean(per_seed):.3f} ± {statistics.stdev(per_seed):.3f} (0.46)" in gpl_row
     assert "2 training seed(s): 0, 1" in gpl_row
-    assert "not built yet" in md and "not run yet" in md
+    assert "not in the paper either" in md and "not run yet" in md
     results = collect_results(out)
     assert {(r.entry, r.evaluation) for r in results} == {("multiroom-gpl", "test"), ("multiroom-gpl", "test-c10"),
                                                           ("multiroom-instruction", "test")}

@@ -160,7 +160,8 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
     assert tv.to(torch.device("cpu")) is tv
     assert tv.nbytes == sum(getattr(tv, f).nbytes for f in ("observations", "expert_actions", "attempt_rows",
                                                              "instruction_ids", "correction_ids", "context_rows",
-                                                             "trajectories", "previous_rows", "previous_actions"))
+                                                             "trajectories", "previous_rows", "previous_actions",
+                                                             "attempt_task_ids"))
     results = {}
     for device in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
         learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg(device=device, num_epochs_per_round=2))
@@ -191,15 +192,17 @@ def test_previous_steps_of_a_view_follow_each_attempt(tmp_path):
 
 
 @pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
-def test_mivoa_trains_and_is_evaluated_through_the_one_rollout_loop(tmp_path, domain_name):
-    """MIVOA (instruction and full information) collects, trains and meta-tests serially: one
-    attempt per task (it takes no corrections), the previous step read in collection and training."""
+def test_baselines_train_and_are_evaluated_through_the_one_rollout_loop(tmp_path, domain_name):
+    """MIVOA (instruction and full information) and the full-information baseline (relocation's
+    as numbers) collect, train and meta-test serially: one attempt per task (they take no
+    corrections); MIVOA's previous step and relocation's numbers are read in every stage (the
+    models raise without them)."""
     from gpl_dist.config import load_config
     from learner.driver import run_training
     from learner.evaluate import evaluate_run
 
     base = "multiroom-smoke.yaml" if domain_name == "multiroom" else "relocation.yaml"
-    for variant in ("mivoa", "mivoa_full_information"):
+    for variant in ("mivoa", "mivoa_full_information", "full_information"):
         cfg = load_config(Path(__file__).resolve().parent.parent / "configs" / base, {
             "model.variant": variant, "training.num_rounds": "2", "env.max_train_tasks": "3", "collection.num_workers": "1",
             "training.num_epochs_per_round": "1", "eval.max_tasks": "2", "eval.seeds": "[0]", "buffer.capacity_tuples": "100000"})

@@ -190,7 +190,8 @@ class Rollout:
         """
         with torch.inference_mode():
             z = self.policy.encode_conditioning(self._conditioning([batch.instructions[i] for i in active],
-                                                                   [batch.histories[i] for i in active], k))
+                                                                   [batch.histories[i] for i in active], k,
+                                                                   [batch.task_ids[i] for i in active]))
         m, steps = active.size, self.domain.steps_per_attempt
         envs = [batch.envs[i] for i in active]
         alive = [not batch.failed[i] for i in active]
@@ -272,7 +273,7 @@ class Rollout:
         return source.correct(env, rng) if hasattr(source, "correct") else source(env, rng)  # type: ignore[operator,union-attr]
 
     def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]],
-                      k: int) -> Conditioning:
+                      k: int, task_ids: list[int]) -> Conditioning:
         vocab, d = self.domain.vocabulary, self.domain
         m = len(instructions)
         pairs = [pair for hist in histories for pair in hist[:k]]
@@ -286,4 +287,12 @@ class Rollout:
             trajectories=torch.from_numpy(traj),
             correction_ids=torch.from_numpy(corr),
             slots=torch.arange(m * k, dtype=torch.long).reshape(m, k),
+            instruction_values=self._full_information_values(task_ids),
         )
+
+    def _full_information_values(self, task_ids: list[int]) -> torch.Tensor | None:
+        """float32 ``(m, F)``: the tasks' numeric full information, for a model that reads it."""
+        values_of_task = self.domain.full_information_values
+        if not self.policy.numeric_full_information or values_of_task is None:
+            return None
+        return torch.from_numpy(np.stack([values_of_task(t) for t in task_ids]))

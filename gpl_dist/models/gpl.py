@@ -54,16 +54,20 @@ class Conditioning:
         correction_ids: int64 ``(U, L)`` the correction given after each earlier attempt.
         slots: int64 ``(A, K)`` rows of ``trajectories`` each attempt is conditioned on, oldest
             first, padded with -1.
+        instruction_values: float32 ``(A, F)`` numeric full information in place of the
+            instruction (``DomainSpec.full_information_values``), or None.
     """
 
     instruction_ids: torch.Tensor
     trajectories: torch.Tensor
     correction_ids: torch.Tensor
     slots: torch.Tensor
+    instruction_values: torch.Tensor | None = None
 
     def to(self, device: torch.device | str) -> "Conditioning":
-        return Conditioning(*(t.to(device, non_blocking=True) for t in
-                              (self.instruction_ids, self.trajectories, self.correction_ids, self.slots)))
+        move = lambda t: t.to(device, non_blocking=True)  # noqa: E731
+        return Conditioning(move(self.instruction_ids), move(self.trajectories), move(self.correction_ids), move(self.slots),
+                            None if self.instruction_values is None else move(self.instruction_values))
 
 
 def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
@@ -294,6 +298,17 @@ class TextEncoder(nn.Module):
         return self.mlp(x.transpose(1, 2).flatten(1))  # channel-major, as Conv1d's output
 
 
+class ValueEncoder(nn.Module):
+    """float32 ``(B, F)`` numbers -> vector: an MLP (numeric full information)."""
+
+    def __init__(self, width: int, mlp_sizes: tuple[int, ...]):
+        super().__init__()
+        self.mlp, self.out_dim = mlp(mlp_sizes, width)
+
+    def forward(self, values: torch.Tensor) -> torch.Tensor:
+        return self.mlp(values.float())
+
+
 class TrajectoryEncoder(nn.Module):
     """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
 
@@ -329,7 +344,13 @@ class GPLPolicy(nn.Module):
         sizes = domain.model_sizes
         vocab = domain.vocabulary
         self.embedding = nn.Embedding(vocab.size, embedding_dim, padding_idx=vocab.pad_id)
-        self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
+        #: full information as numbers (relocation's block and coordinates), read by an MLP
+        self.numeric_full_information = variant == "full_information" and domain.full_information_values is not None
+        if self.numeric_full_information:
+            width = len(domain.full_information_values(0))  # type: ignore[misc]
+            self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp)
+        else:
+            self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
         self.correction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp)
         self.trajectory = TrajectoryEncoder(domain, sizes)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
@@ -352,7 +373,13 @@ class GPLPolicy(nn.Module):
 
     def encode_conditioning(self, cond: Conditioning) -> torch.Tensor:
         """``(A, conditioning_dim)``: ``[z_im, z_cm]`` for each attempt row of ``cond``."""
-        z_im = self.instruction(cond.instruction_ids)
+        if self.numeric_full_information:
+            if cond.instruction_values is None:
+                raise ValueError(f"the {self.domain_name} full-information model reads numbers: "
+                                 "Conditioning.instruction_values is missing")
+            z_im = self.instruction(cond.instruction_values)
+        else:
+            z_im = self.instruction(cond.instruction_ids)
         if self.variant == "no_instruction":
             z_im = torch.zeros_like(z_im)
         a = z_im.shape[0]

@@ -71,6 +71,8 @@ class MIVOAPolicy(nn.Module):
 
     uses_corrections = False
     uses_previous_step = True
+    #: full information is read as text here, on every domain (the paper has no numeric MIVOA)
+    numeric_full_information = False
 
     def __init__(self, domain: DomainSpec, variant: str = "mivoa", embedding_dim: int = 16,
                  policy_batchnorm: bool = False):
