@@ -77,7 +77,7 @@ class ModelConfig:
     """The ``model`` section: the variant and the architecture's switches."""
 
     variant: str = "gpl"
-    """gpl; a baseline (instruction_only, full_information, mivoa[_full_information]); an ablation (no_*, latest_correction)."""
+    """gpl, gpr, a baseline (instruction_only, full_information, mivoa, mivoa_full_information) or an ablation (no_*)."""
     embedding_dim: int = 16
     """Size of the word embeddings shared by the instruction and correction modules."""
     trajectory_ends_at_last_state: bool = False
@@ -271,8 +271,9 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
 #: whole attempt and grows the conditioning of every later one.
 MAX_CORRECTIONS = 100
 
+# ablations: no_instruction, no_trajectory, latest_correction (gpl_dist.models.gpl)
 _VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
-             "mivoa", "mivoa_full_information")
+             "mivoa", "mivoa_full_information", "gpr")
 _DEVICES = ("auto", "cpu", "cuda")
 
 

@@ -52,6 +52,8 @@ class Attempt:
         correction_ids: int64 ``(L,)`` token ids of ``correction`` (all padding when none).
         seed: the seed the env was reset with.
         policy_version: version of the weights that acted.
+        reward_sum: the env's reward summed over the attempt (its dense reward: the paper's
+            GPR feeds it in place of the correction); NaN when not recorded (older shards).
     """
 
     task_id: int
@@ -70,6 +72,7 @@ class Attempt:
     seed: int
     policy_version: int
     expert_probs: np.ndarray | None = None
+    reward_sum: float = float("nan")
 
     @property
     def length(self) -> int:

@@ -89,6 +89,14 @@ PAPER_TABLES = (
         PaperRow("MIVOA (Full Info)", "multiroom-heldout-mivoa-full-info", "heldout", (0,), (0.62,)),
         PaperRow("GPL", "multiroom-heldout-gpl", "heldout", _C05, (0.073, 0.44, 0.58, 0.65, 0.73, 0.75)),
     )),
+    PaperTable("gpr", "GPR, the reward-guided variant, beside GPL (the paper draws both in its sample-complexity figure "
+               "and prints no numbers: GPR 'performs poorly on the multi-room domain but obtains reasonable performance "
+               "for the robotic domain')", _C05, (
+        PaperRow("Multi-room GPL", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+        PaperRow("Multi-room GPR", "multiroom-gpr", "test", _C05, (None,) * 6),
+        PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),
+        PaperRow("Relocation GPR", "relocation-gpr", "test", _C05, (None,) * 6),
+    )),
 )
 
 

@@ -38,6 +38,7 @@ class TensorView:
         attempt_task_ids: int64 ``(A,)`` each attempt's task; None when the view has none.
         instruction_values: float32 ``(A, F)`` numeric full information of each attempt
             (``with_full_information``), or None.
+        attempt_rewards: float32 ``(A,)`` each attempt's summed reward (NaN where not recorded), or None.
     """
 
     observations: torch.Tensor
@@ -52,6 +53,7 @@ class TensorView:
     previous_actions: torch.Tensor | None = None
     attempt_task_ids: torch.Tensor | None = None
     instruction_values: torch.Tensor | None = None
+    attempt_rewards: torch.Tensor | None = None
 
     @classmethod
     def from_view(cls, view) -> "TensorView":
@@ -67,7 +69,8 @@ class TensorView:
                    t(view.trajectories), expert_probs=None if probs is None else t(probs),
                    previous_rows=None if prev_rows is None else torch.from_numpy(prev_rows),
                    previous_actions=None if prev_actions is None else torch.from_numpy(prev_actions),
-                   attempt_task_ids=t(view.task_id).long() if hasattr(view, "task_id") else None)
+                   attempt_task_ids=t(view.task_id).long() if hasattr(view, "task_id") else None,
+                   attempt_rewards=t(view.reward_sum).float() if hasattr(view, "reward_sum") else None)
 
     def with_full_information(self, values_of_task: Callable[[int], np.ndarray]) -> "TensorView":
         """This view with each attempt's numeric full information, ``values_of_task(task_id)``."""
@@ -122,6 +125,7 @@ class TensorView:
             correction_ids=self.correction_ids[earlier],
             slots=slots,
             instruction_values=None if self.instruction_values is None else self.instruction_values[uniq],
+            correction_values=None if self.attempt_rewards is None else self.attempt_rewards[earlier],
         )
         return self.observations[idx], self.expert_actions[idx], cond, inverse
 

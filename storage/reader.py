@@ -38,7 +38,8 @@ class TrainingView:
     Per attempt (``A`` rows: every attempt with tuples in the view, plus every earlier attempt a kept
     attempt is conditioned on, even when its own tuples fell out; ordered by ``attempt_keys``):
         attempt_keys, round_index, unit_index, task_id, attempt_index, lengths: int64 ``(A,)``;
-        instruction_ids, correction_ids: int64 ``(A, L)``; completion float32 ``(A,)``; success bool;
+        instruction_ids, correction_ids: int64 ``(A, L)``; completion, reward_sum float32 ``(A,)``
+        (reward_sum NaN where a shard older than schema 3 has none); success bool;
         in_window bool ``(A,)`` (its tuples are in the view);
         context_rows int64 ``(A, Kmax)``: rows of attempts 0..k-1 of the same (round, task), in
         order, padded with -1; ``Kmax = max(1, max attempt_index)``;
@@ -63,6 +64,7 @@ class TrainingView:
     instruction_ids: np.ndarray
     correction_ids: np.ndarray
     completion: np.ndarray
+    reward_sum: np.ndarray
     success: np.ndarray
     in_window: np.ndarray
     context_rows: np.ndarray
@@ -167,6 +169,13 @@ _ATTEMPT_COLUMNS = [
 ]
 
 
+def _with_reward_sum(table: pa.Table) -> pa.Table:
+    """An attempts table with a ``reward_sum`` column: NaN for a shard written before schema 3."""
+    if "reward_sum" in table.column_names:
+        return table
+    return table.append_column("reward_sum", pa.array(np.full(table.num_rows, np.nan), pa.float64()))
+
+
 def _assemble_probs(chunks: list[tuple[int, np.ndarray | None]], expert_actions: np.ndarray) -> np.ndarray | None:
     """One ``(N, A)`` array from per-shard rows; rows a shard did not store become one-hot."""
     width = next((c.shape[1] for _, c in chunks if c is not None), None)
@@ -246,6 +255,7 @@ class BufferReader:
             instruction_ids=_fixed_lists(att.column("instruction_ids").take(pa.array(sel)), "instruction_ids"),
             correction_ids=_fixed_lists(att.column("correction_ids").take(pa.array(sel)), "correction_ids"),
             completion=att.column("completion").to_numpy()[sel].astype(np.float32),
+            reward_sum=att.column("reward_sum").to_numpy(zero_copy_only=False)[sel].astype(np.float32),
             success=att.column("success").to_numpy(zero_copy_only=False)[sel].astype(bool),
             in_window=rows.in_window[sel],
             context_rows=rows.context_rows,
@@ -268,7 +278,8 @@ class BufferReader:
             if m.obs_shape is not None and not window.obs_shape:
                 window.obs_shape, window.obs_dtype = tuple(m.obs_shape), np.dtype(m.obs_dtype)
             shards = sorted(m.shards, key=lambda s: s.unit_index)
-            parts = [read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS) for s in shards]
+            parts = [_with_reward_sum(read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS, optional=["reward_sum"]))
+                     for s in shards]
             t = pa.concat_tables(parts) if parts else None
             if t is None or t.num_rows == 0:
                 continue
@@ -480,7 +491,7 @@ def _empty_view(obs_shape: tuple[int, ...], dtype: np.dtype, stride: int, end_al
         observations=np.zeros((0, *obs_shape), dtype), expert_actions=z(0), expert_probs=None, actions=z(0), timesteps=z(0),
         attempt_rows=z(0), attempt_keys=z(0), round_index=z(0), unit_index=z(0), task_id=z(0),
         attempt_index=z(0), lengths=z(0), instruction_ids=z(0, 0), correction_ids=z(0, 0),
-        completion=z(0, dt=np.float32), success=z(0, dt=bool), in_window=z(0, dt=bool),
+        completion=z(0, dt=np.float32), reward_sum=z(0, dt=np.float32), success=z(0, dt=bool), in_window=z(0, dt=bool),
         context_rows=z(0, 1), trajectories=np.zeros((0, 1, *obs_shape), dtype), trajectory_lengths=z(0),
         trajectory_stride=stride, trajectory_end_aligned=bool(end_aligned), rounds=rounds,
     )

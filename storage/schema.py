@@ -17,7 +17,8 @@ from gpl_dist.records import Attempt, WorkUnit
 from storage.layout import attempt_key, committed_path
 
 # 2: tuples carry expert_probs (a version-1 shard reads as one-hot labels)
-SCHEMA_VERSION = 2
+# 3: attempts carry reward_sum (an older shard reads as NaN)
+SCHEMA_VERSION = 3
 
 ATTEMPTS_SCHEMA = pa.schema(
     [
@@ -36,6 +37,8 @@ ATTEMPTS_SCHEMA = pa.schema(
         # attempt_key of attempts 0..k-1 of the same (round, task) that conditioned this one, in order
         pa.field("context_keys", pa.list_(pa.int64())),
         pa.field("completion", pa.float64()),
+        # the env's reward summed over the attempt (GPR's feedback)
+        pa.field("reward_sum", pa.float64()),
         pa.field("success", pa.bool_()),
         pa.field("policy_version", pa.int64()),
         pa.field("worker_id", pa.string()),
@@ -159,6 +162,7 @@ def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], 
             "correction_ids": [np.asarray(a.correction_ids, dtype=np.int64).tolist() for a in attempts],
             "context_keys": ctx,
             "completion": [float(a.completion) for a in attempts],
+            "reward_sum": [float(a.reward_sum) for a in attempts],
             "success": [bool(a.success) for a in attempts],
             "policy_version": [int(a.policy_version) for a in attempts],
             "worker_id": [worker_id] * n_att,

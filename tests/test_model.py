@@ -7,7 +7,7 @@ from gpl_dist.models.gpl import Conditioning, build_model, load_numpy_state, sta
 from gpl_dist.models.mivoa import PreviousStep
 
 VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
-            "mivoa", "mivoa_full_information"]
+            "mivoa", "mivoa_full_information", "gpr"]
 
 
 def random_states(domain, shape, g):
@@ -33,6 +33,7 @@ def random_conditioning(domain, a, k, seed=0):
         correction_ids=torch.from_numpy(g.integers(2, vocab.size, (a * k, vocab.max_tokens))),
         slots=torch.from_numpy(slots),
         instruction_values=values,
+        correction_values=torch.from_numpy((g.normal(size=a * k) * 100).astype(np.float32)),
     )
 
 
@@ -61,7 +62,8 @@ def _z(model, cond):
 
 def _replace(cond, **kw):
     fields = dict(instruction_ids=cond.instruction_ids, trajectories=cond.trajectories,
-                  correction_ids=cond.correction_ids, slots=cond.slots, instruction_values=cond.instruction_values)
+                  correction_ids=cond.correction_ids, slots=cond.slots, instruction_values=cond.instruction_values,
+                  correction_values=cond.correction_values)
     fields.update(kw)
     return Conditioning(**fields)
 
@@ -299,3 +301,20 @@ def test_relocation_full_information_reads_the_block_and_the_target_as_numbers()
         torch.testing.assert_close(z, model.encode_conditioning(other_words))  # the text is not read
     with pytest.raises(ValueError, match="reads numbers"):
         model.encode_conditioning(_replace(cond, instruction_values=None))
+
+
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+def test_gpr_reads_each_earlier_attempts_summed_reward_in_place_of_its_correction(domain_name):
+    d = get_domain(domain_name)
+    model = build_model(d, "gpr", seed=0).eval()
+    assert model.uses_corrections
+    cond = random_conditioning(d, a=4, k=2)
+    cond = _replace(cond, slots=torch.arange(8).reshape(4, 2))  # every attempt has two earlier ones
+    with torch.no_grad():
+        z = model.encode_conditioning(cond)
+        other_reward = model.encode_conditioning(_replace(cond, correction_values=cond.correction_values + 50.0))
+        other_text = model.encode_conditioning(_replace(cond, correction_ids=torch.roll(cond.correction_ids, 1, 1)))
+    assert not torch.allclose(z, other_reward)
+    torch.testing.assert_close(z, other_text)  # the correction's words are not read
+    with pytest.raises(ValueError, match="summed reward"):
+        model.encode_conditioning(_replace(cond, correction_values=None))

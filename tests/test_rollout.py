@@ -81,6 +81,24 @@ def test_expert_labels_match_a_fresh_expert_query():
         env.step(int(a))
 
 
+@pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
+def test_each_attempt_records_its_summed_reward_and_gpr_is_conditioned_on_it(domain_name):
+    """An attempt's reward_sum is its env's dense reward summed over its steps (replayed from its
+    seed and actions); it reaches the buffer and GPR's conditioning."""
+    w = make_worker(domain_name, num_corrections=1, variant="gpr")
+    attempts = w.collect(TASKS[:2], "train", seed=4)
+    for att in attempts:
+        env = w.domain.make_env(att.task_id)
+        env.reset(seed=att.seed)
+        total = sum(float(env.step(int(a))[1]) for a in att.actions)
+        assert att.reward_sum == pytest.approx(total, rel=1e-9, abs=1e-9) and np.isfinite(att.reward_sum)
+    from gpl_dist.records import WorkUnit
+    from storage.schema import build_unit_tables
+
+    tables = build_unit_tables("run", WorkUnit(0, 0, TASKS[:2], "train", 4, 0), attempts, "w")
+    assert tables.attempts.column("reward_sum").to_pylist() == pytest.approx([a.reward_sum for a in attempts])
+
+
 def test_variants_without_corrections_make_one_attempt():
     w = make_worker(num_corrections=5, variant="full_information")
     attempts = w.collect(TASKS, "train", seed=0)

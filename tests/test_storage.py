@@ -278,3 +278,14 @@ def test_empty_units_zero_length_attempts_and_dry_run(tmp_path):
     assert clean_leftovers(root, dry_run=True) == [f"staging/round-000000/unit-00001/try-{stray.try_id}"]
     assert clean_leftovers(root) == [f"staging/round-000000/unit-00001/try-{stray.try_id}"]
     assert BufferReader(tmp_path / "nothing").load_training_view().num_tuples == 0
+
+
+def test_an_attempts_table_from_before_schema_3_reads_its_reward_sums_as_nan():
+    import pyarrow as pa
+
+    from storage.reader import _with_reward_sum
+
+    old = pa.table({"attempt_key": [1, 2]})
+    assert np.isnan(_with_reward_sum(old).column("reward_sum").to_numpy()).all()
+    new = pa.table({"attempt_key": [1], "reward_sum": [3.5]})
+    assert _with_reward_sum(new) is new

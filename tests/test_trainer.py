@@ -161,7 +161,7 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
     assert tv.nbytes == sum(getattr(tv, f).nbytes for f in ("observations", "expert_actions", "attempt_rows",
                                                              "instruction_ids", "correction_ids", "context_rows",
                                                              "trajectories", "previous_rows", "previous_actions",
-                                                             "attempt_task_ids"))
+                                                             "attempt_task_ids", "attempt_rewards"))
     results = {}
     for device in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
         learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg(device=device, num_epochs_per_round=2))
@@ -193,22 +193,25 @@ def test_previous_steps_of_a_view_follow_each_attempt(tmp_path):
 
 @pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
 def test_baselines_train_and_are_evaluated_through_the_one_rollout_loop(tmp_path, domain_name):
-    """MIVOA (instruction and full information) and the full-information baseline (relocation's
-    as numbers) collect, train and meta-test serially: one attempt per task (they take no
-    corrections); MIVOA's previous step and relocation's numbers are read in every stage (the
-    models raise without them)."""
+    """MIVOA (instruction and full information), the full-information baseline (relocation's as
+    numbers) and GPR collect, train and meta-test serially: the baselines one attempt per task;
+    MIVOA's previous step, relocation's numbers and GPR's summed rewards are read in every stage
+    (the models raise without them)."""
     from gpl_dist.config import load_config
     from learner.driver import run_training
     from learner.evaluate import evaluate_run
 
     base = "multiroom-smoke.yaml" if domain_name == "multiroom" else "relocation.yaml"
-    for variant in ("mivoa", "mivoa_full_information", "full_information"):
+    for variant in ("mivoa", "mivoa_full_information", "full_information", "gpr"):
         cfg = load_config(Path(__file__).resolve().parent.parent / "configs" / base, {
             "model.variant": variant, "training.num_rounds": "2", "env.max_train_tasks": "3", "collection.num_workers": "1",
             "training.num_epochs_per_round": "1", "eval.max_tasks": "2", "eval.seeds": "[0]", "buffer.capacity_tuples": "100000"})
         run = tmp_path / variant
         result = run_training(cfg, run, serial=True, progress=False)
         assert [m.round_index for m in result.history] == [0, 1] and all(np.isfinite(m.loss) for m in result.history)
-        assert all(len(m.completion_by_corrections) == 1 for m in result.history)  # one attempt per task
+        if variant != "gpr":
+            assert all(len(m.completion_by_corrections) == 1 for m in result.history)  # one attempt per task
         evaluation, _ = evaluate_run(run)
         assert evaluation.num_tasks == 2 and len(evaluation.completion) >= 1
+        view = BufferReader(run / "buffer").load_training_view()
+        assert view.reward_sum.shape == view.completion.shape and np.isfinite(view.reward_sum).all()

@@ -80,8 +80,8 @@ class _Batch:
     failed: np.ndarray
     solved: np.ndarray
     instructions: list[str]
-    # (trajectory (S, *O), correction ids (L,)) of each finished attempt of each task
-    histories: list[list[tuple[np.ndarray, np.ndarray]]]
+    # (trajectory (S, *O), correction ids (L,), summed reward) of each finished attempt of each task
+    histories: list[list[tuple[np.ndarray, np.ndarray, float]]]
     attempts: list[list[Attempt]]
     failures: list[TaskFailure] = field(default_factory=list)
 
@@ -143,8 +143,8 @@ class Rollout:
                 break
             reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
             buffers = self._reset(batch, active, k, reset_seeds)
-            infos = self._step_attempt(batch, active, buffers, action_rng, k)
-            self._finish_attempt(batch, active, buffers, infos, k, reset_seeds,
+            infos, returns = self._step_attempt(batch, active, buffers, action_rng, k)
+            self._finish_attempt(batch, active, buffers, infos, returns, k, reset_seeds,
                                  seed=seed, split=split, last=k == max_attempts - 1, policy_version=policy_version)
         return RolloutResult(tuple(a for per_task in batch.attempts for a in per_task), tuple(batch.failures))
 
@@ -180,8 +180,9 @@ class Rollout:
         return buffers
 
     def _step_attempt(self, batch: _Batch, active: np.ndarray, buffers: _AttemptBuffers,
-                      action_rng: np.random.Generator, k: int) -> list[dict]:
-        """Step the active tasks' envs in lockstep for one attempt; fills ``buffers`` in place.
+                      action_rng: np.random.Generator, k: int) -> tuple[list[dict], list[float]]:
+        """Step the active tasks' envs in lockstep for one attempt; fills ``buffers`` in place and
+        returns each env's last info and its summed reward.
 
         The hot loop: one batched policy forward per step, then per env one expert label and one
         env step. Per-env work stays in plain Python lists (numpy scalar indexing costs more than
@@ -198,6 +199,7 @@ class Rollout:
         expert, soft = self.expert, buffers.probs is not None
         last_obs = list(buffers.obs[:, 0])  # the reset observations
         infos: list[dict] = [{}] * m
+        returns = [0.0] * m  # each attempt's summed reward (GPR's feedback)
         labels = [-1] * m
         zero_probs = np.zeros(self.domain.num_actions, dtype=np.float32)
         probs = [zero_probs] * m
@@ -215,7 +217,8 @@ class Rollout:
                         labels[j], probs[j] = expert.label(env)  # type: ignore[union-attr]
                     elif expert is not None:
                         labels[j] = expert.act(env)
-                    last_obs[j], _, _, _, infos[j] = env.step(a)
+                    last_obs[j], reward, _, _, infos[j] = env.step(a)
+                    returns[j] += float(reward)
                 except Exception as err:  # noqa: BLE001 - one broken task must not end the batch
                     alive[j] = False
                     labels[j], probs[j] = -1, zero_probs
@@ -226,7 +229,7 @@ class Rollout:
                     np.stack(probs, out=buffers.probs[:, t])  # type: ignore[index]
             if t + 1 < steps:
                 np.stack(last_obs, out=buffers.obs[:, t + 1])
-        return infos
+        return infos, returns
 
     def _previous(self, buffers: _AttemptBuffers, t: int) -> PreviousStep | None:
         """The step before ``t`` for a policy that reads it (``PreviousStep``), else None."""
@@ -237,7 +240,7 @@ class Rollout:
         return PreviousStep(torch.from_numpy(buffers.obs[:, t - 1]), torch.from_numpy(buffers.actions[:, t - 1]))
 
     def _finish_attempt(self, batch: _Batch, active: np.ndarray, buffers: _AttemptBuffers, infos: list[dict],
-                        k: int, reset_seeds: list[int], *, seed: int, split: str, last: bool,
+                        returns: list[float], k: int, reset_seeds: list[int], *, seed: int, split: str, last: bool,
                         policy_version: int) -> None:
         """Record each active task's attempt, with the correction that follows it unless it
         solved the task or was the last."""
@@ -264,30 +267,34 @@ class Rollout:
                 correction=text, correction_kind=kind, correction_ids=corr_ids,
                 seed=reset_seeds[j], policy_version=policy_version,
                 expert_probs=None if buffers.probs is None else buffers.probs[j],
+                reward_sum=returns[j],
             ))
-            batch.histories[i].append((buffers.obs[j, self.traj_times], corr_ids))
+            batch.histories[i].append((buffers.obs[j, self.traj_times], corr_ids, returns[j]))
             batch.solved[i] = success
 
     def _correct(self, env: Any, rng: np.random.Generator) -> Correction:
         source = self.corrections
         return source.correct(env, rng) if hasattr(source, "correct") else source(env, rng)  # type: ignore[operator,union-attr]
 
-    def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray]]],
+    def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray, float]]],
                       k: int, task_ids: list[int]) -> Conditioning:
         vocab, d = self.domain.vocabulary, self.domain
         m = len(instructions)
         pairs = [pair for hist in histories for pair in hist[:k]]
         traj = np.zeros((len(pairs), d.trajectory_samples) + d.obs_shape, dtype=d.obs_dtype)
         corr = np.zeros((len(pairs), vocab.max_tokens), dtype=np.int64)
-        for u, (tr, c) in enumerate(pairs):
+        rewards = np.zeros(len(pairs), dtype=np.float32)
+        for u, (tr, c, r) in enumerate(pairs):
             traj[u, : tr.shape[0]] = tr
             corr[u] = c
+            rewards[u] = r
         return Conditioning(
             instruction_ids=torch.from_numpy(vocab.encode_batch(instructions)),
             trajectories=torch.from_numpy(traj),
             correction_ids=torch.from_numpy(corr),
             slots=torch.arange(m * k, dtype=torch.long).reshape(m, k),
             instruction_values=self._full_information_values(task_ids),
+            correction_values=torch.from_numpy(rewards),
         )
 
     def _full_information_values(self, task_ids: list[int]) -> torch.Tensor | None:

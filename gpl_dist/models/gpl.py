@@ -17,7 +17,9 @@ once per attempt in a batch (``Conditioning`` holds one row per distinct attempt
 
 Variants (``ModelConfig.variant``): ``gpl`` (the paper's model), ``instruction_only`` (no correction
 module), ``full_information`` (the instruction is the full-information text, no corrections),
-``no_instruction``, ``no_trajectory`` and ``latest_correction`` (only the newest pair) ablations.
+``no_instruction``, ``no_trajectory`` and ``latest_correction`` (only the newest pair) ablations;
+``gpr`` (the paper's reward-guided variant: each earlier attempt's summed reward, through an MLP,
+in place of its correction; the trajectory path stays).
 ``mivoa`` and ``mivoa_full_information`` build another network, ``gpl_dist.models.mivoa``.
 """
 
@@ -56,6 +58,8 @@ class Conditioning:
             first, padded with -1.
         instruction_values: float32 ``(A, F)`` numeric full information in place of the
             instruction (``DomainSpec.full_information_values``), or None.
+        correction_values: float32 ``(U,)`` each earlier attempt's summed reward (GPR's feedback
+            in place of the correction), or None.
     """
 
     instruction_ids: torch.Tensor
@@ -63,11 +67,13 @@ class Conditioning:
     correction_ids: torch.Tensor
     slots: torch.Tensor
     instruction_values: torch.Tensor | None = None
+    correction_values: torch.Tensor | None = None
 
     def to(self, device: torch.device | str) -> "Conditioning":
         move = lambda t: t.to(device, non_blocking=True)  # noqa: E731
+        maybe = lambda t: None if t is None else move(t)  # noqa: E731
         return Conditioning(move(self.instruction_ids), move(self.trajectories), move(self.correction_ids), move(self.slots),
-                            None if self.instruction_values is None else move(self.instruction_values))
+                            maybe(self.instruction_values), maybe(self.correction_values))
 
 
 def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
@@ -351,7 +357,10 @@ class GPLPolicy(nn.Module):
             self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp)
         else:
             self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
-        self.correction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp)
+        # GPR: the summed reward of each earlier attempt, in place of its correction
+        self.correction: TextEncoder | ValueEncoder = (
+            ValueEncoder(1, sizes.correction_mlp) if variant == "gpr"
+            else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp))
         self.trajectory = TrajectoryEncoder(domain, sizes)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
                                   final_activation=sizes.pair_final_relu)
@@ -393,10 +402,20 @@ class GPLPolicy(nn.Module):
         z_traj = self.trajectory(cond.trajectories)
         if self.variant == "no_trajectory":
             z_traj = torch.zeros_like(z_traj)
-        pairs = self.pair(torch.cat([z_traj, self.correction(cond.correction_ids)], dim=1))  # (U, P)
+        pairs = self.pair(torch.cat([z_traj, self._encode_corrections(cond)], dim=1))  # (U, P)
         gathered = pairs[cond.slots.clamp(min=0)] * mask.unsqueeze(-1).to(pairs.dtype)  # (A, K, P)
         counts = mask.sum(1, keepdim=True).clamp(min=1).to(pairs.dtype)
         return torch.cat([z_im, gathered.sum(1) / counts], dim=1)
+
+    def _encode_corrections(self, cond: Conditioning) -> torch.Tensor:
+        """``(U, C)``: each earlier attempt's correction, or for GPR its summed reward (symlog:
+        sums span -1e3..5e2 across domains and attempts)."""
+        if self.variant != "gpr":
+            return self.correction(cond.correction_ids)
+        if cond.correction_values is None:
+            raise ValueError("GPR reads each earlier attempt's summed reward: Conditioning.correction_values is missing")
+        r = cond.correction_values.float()
+        return self.correction((torch.sign(r) * torch.log1p(r.abs())).unsqueeze(1))
 
     def action_logits(self, obs: torch.Tensor, z: torch.Tensor, previous=None) -> torch.Tensor:
         """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``
