@@ -29,6 +29,7 @@ The format, in one place (unknown keys fail in one line before anything runs)::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import subprocess
 import time
@@ -197,8 +198,11 @@ def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple
     return runs
 
 
+@functools.cache
 def code_commit() -> str:
-    """The git commit of the code running (with ``+dirty`` when tracked files differ), or ``unknown``."""
+    """The git commit of the code this process runs, read once, when first asked (``run_suite``
+    asks before any run: a commit made while a suite runs does not relabel its runs), with
+    ``+dirty`` when tracked files differ; ``unknown`` outside a git checkout."""
     here = Path(__file__).resolve().parent
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,
@@ -220,6 +224,14 @@ def _write_record(run_dir: Path, record: dict) -> None:
     tmp = run_dir / "suite-run.json.tmp"
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     tmp.replace(run_dir / "suite-run.json")
+
+
+def _started(run_dir: Path, record: dict) -> None:
+    """Record this process's commit before it trains: a run killed and resumed lists every
+    commit that trained a round of it."""
+    record["commits"] = sorted(set(record["commits"]) | {code_commit()})
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _write_record(run_dir, record)
 
 
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
@@ -257,11 +269,11 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
+        _started(run.run_dir, record)
         t0 = time.perf_counter()
         run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
                      progress=progress)
         record["train_seconds"] += time.perf_counter() - t0
-        record["commits"] = sorted(set(record["commits"]) | {code_commit()})
         _write_record(run.run_dir, record)
     for name in run.entry.evaluations:
         if name in record["evaluations"]:
@@ -287,6 +299,7 @@ def run_suite(suite: Suite, out: str | Path, *, only: tuple[str, ...] = (), seed
     cluster): every unfinished run at once, each a Ray task that drives its own rollout actors on
     the cluster (``OUT`` must then be on storage every node sees); Ray queues what does not fit.
     """
+    code_commit()  # this process's code, before anything can change the checkout
     runs = plan(suite, out, only, seeds)
     before = [(r, run_state(r, suite)) for r in runs]  # refuses a changed entry before anything runs
     Path(out).mkdir(parents=True, exist_ok=True)
