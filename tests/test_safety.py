@@ -190,7 +190,7 @@ def test_quarantined_round_after_the_last_checkpoint_is_collected_again(run_copy
 _PROBES = {
     "env.correction_kind=subgoals": "env.correction_kind must be one of default, subgoal",
     "env.expert=learnt": "env.expert must be one of scripted for multiroom",
-    "model.variant=mivoa": "model.variant must be one of",
+    "model.variant=transformer": "model.variant must be one of",
     "training.num_rounds=[1": "training.num_rounds='[1': the value is not valid YAML",
     "env.max_train_tasks=-1": "env.max_train_tasks must be >= 0",
     "env.task_ids=[0,99999]": "env.task_ids [99999] are outside multiroom's tasks 0..3239",
