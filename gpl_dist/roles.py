@@ -59,7 +59,6 @@ class DomainSpec:
         make_corrector: ``make_corrector(kind)`` -> ``CorrectionOracle``.
         model_sizes: layer sizes of the GPL network (``gpl_dist.models.sizes.Sizes``).
         paper_completion: the paper's GPL completion on test tasks after k corrections (Tables 1, 3).
-        paper_baselines: the paper's baseline completions by name (Table 1).
         obs_categories: for categorical grid observations, the number of codes each channel can
             hold (the model one-hot encodes them); None for continuous observations.
         splits: task ids of each split, given inline; None reads the versioned file
@@ -86,7 +85,6 @@ class DomainSpec:
     make_corrector: Callable[[str], "CorrectionOracle"]
     model_sizes: "Sizes"
     paper_completion: Mapping[int, float] = field(default_factory=dict)
-    paper_baselines: Mapping[str, float] = field(default_factory=dict)
     obs_categories: tuple[int, ...] | None = None
     splits: Mapping[str, tuple[int, ...]] | None = None
     full_information_values: Callable[[int], np.ndarray] | None = None

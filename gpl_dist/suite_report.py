@@ -2,10 +2,11 @@
 
 Every number is read from the runs' ``eval*.json`` files (through each run's ``suite-run.json``,
 which names the file of each evaluation); none is typed here except the paper's own, in
-``PAPER_TABLES``. A cell is the mean over **training** seeds of the run's mean completion over its
-evaluation seeds, ± the standard deviation over training seeds (``n`` says how many; one seed has
-no ±). Rows of methods not built, or entries not run yet, are kept with the paper's number and a
-dash, so the report always shows every row of the paper.
+``PAPER_TABLES`` (GPL's from each domain's ``DomainSpec.paper_completion``). A cell is the mean
+over **training** seeds of the run's mean completion over its evaluation seeds, ± the standard
+deviation over training seeds (the last column says which seeds; one seed has no ±). Rows of
+methods not built, or entries not run yet, are kept with the paper's number and a dash, so the
+report always shows every row of the paper.
 
 Writes ``report.md`` (plots beside it as PNG) and ``report.html`` (the same, plots inline).
 """
@@ -50,6 +51,16 @@ class PaperTable:
 
 
 _C05 = (0, 1, 2, 3, 4, 5)
+
+
+def _gpl(domain: str, columns: tuple[int, ...] = _C05) -> tuple[float, ...]:
+    """The paper's GPL completions of ``domain`` (its ``DomainSpec.paper_completion``) at ``columns``."""
+    from gpl_dist.domains import get_domain
+
+    paper = get_domain(domain).paper_completion
+    return tuple(paper[k] for k in columns)
+
+
 PAPER_TABLES = (
     PaperTable("table1-multiroom", "Table 1, multi-room: mean completion on the test tasks (baselines act without "
                "corrections: their one number is the first attempt's)", _C05, (
@@ -57,7 +68,7 @@ PAPER_TABLES = (
         PaperRow("Full Info", "multiroom-full-info", "test", (0,), (0.73,)),
         PaperRow("MIVOA (Instr.)", "multiroom-mivoa-instruction", "test", (0,), (0.067,)),
         PaperRow("MIVOA (Full Info)", "multiroom-mivoa-full-info", "test", (0,), (0.63,)),
-        PaperRow("GPL", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+        PaperRow("GPL", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
     )),
     PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
                "initial block distance)", _C05, (
@@ -65,18 +76,18 @@ PAPER_TABLES = (
         PaperRow("Full Info", "relocation-full-info", "test", (0,), (0.96,)),
         PaperRow("MIVOA (Instr.)", "relocation-mivoa-instruction", "test", (0,), (0.65,)),
         PaperRow("MIVOA (Full Info)", None, "test", (0,), (None,), "not in the paper either"),
-        PaperRow("GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),
+        PaperRow("GPL", "relocation-gpl", "test", _C05, _gpl("relocation")),
     )),
     PaperTable("table2", "Table 2, multi-room ablations", _C05, (
-        PaperRow("Base (GPL)", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+        PaperRow("Base (GPL)", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
         PaperRow("No instruction", "multiroom-no-instruction", "test", _C05, (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
         PaperRow("No trajectory", "multiroom-no-trajectory", "test", _C05, (0.077, 0.44, 0.62, 0.70, 0.76, 0.77)),
         PaperRow("Only immediate correction", "multiroom-latest-correction", "test", _C05,
                  (0.067, 0.49, 0.44, 0.58, 0.59, 0.63)),
     )),
     PaperTable("table3", "Table 3, more corrections at meta-test than in training (5)", (5, 7, 10), (
-        PaperRow("Multi-room", "multiroom-gpl", "test-c10", (5, 7, 10), (0.82, 0.83, 0.86)),
-        PaperRow("Obj Relocation", "relocation-gpl", "test-c10", (5, 7, 10), (0.90, 0.91, 0.95)),
+        PaperRow("Multi-room", "multiroom-gpl", "test-c10", (5, 7, 10), _gpl("multiroom", (5, 7, 10))),
+        PaperRow("Obj Relocation", "relocation-gpl", "test-c10", (5, 7, 10), _gpl("relocation", (5, 7, 10))),
     )),
     PaperTable("table4", "Table 4, multi-room correction types (GPL trained and tested with that kind)", (1, 2, 3, 4, 5), (
         PaperRow("Directional", "multiroom-directional", "test", (1, 2, 3, 4, 5), (0.242, 0.343, 0.43, 0.51, 0.56)),
@@ -92,9 +103,9 @@ PAPER_TABLES = (
     PaperTable("gpr", "GPR, the reward-guided variant, beside GPL (the paper draws both in its sample-complexity figure "
                "and prints no numbers: GPR 'performs poorly on the multi-room domain but obtains reasonable performance "
                "for the robotic domain')", _C05, (
-        PaperRow("Multi-room GPL", "multiroom-gpl", "test", _C05, (0.066, 0.46, 0.65, 0.73, 0.77, 0.82)),
+        PaperRow("Multi-room GPL", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
         PaperRow("Multi-room GPR", "multiroom-gpr", "test", _C05, (None,) * 6),
-        PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, (0.65, 0.80, 0.84, 0.85, 0.88, 0.90)),
+        PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, _gpl("relocation")),
         PaperRow("Relocation GPR", "relocation-gpr", "test", _C05, (None,) * 6),
     )),
 )

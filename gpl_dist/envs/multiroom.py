@@ -448,9 +448,8 @@ DOMAIN = DomainSpec(
         text_conv=4, correction_mlp=(16, 4), instruction_mlp=(16, 32),
         pair_mlp=(32, 32), pair_final_relu=True, policy_mlp=(64, 64),
     ),
-    # Table 1 (GPL, c0..c5) and Table 3 (c7, c10); Table 1's baselines
+    # Table 1 (GPL, c0..c5) and Table 3 (c7, c10)
     paper_completion={0: 0.066, 1: 0.46, 2: 0.65, 3: 0.73, 4: 0.77, 5: 0.82, 7: 0.83, 10: 0.86},
-    paper_baselines={"instruction": 0.075, "full_information": 0.73},
     # codes per channel: type 0..7, colour 0..6, door 0..2, carried type 0..6, carried colour 0..6, flag 0..1
     obs_categories=(8, 7, 3, 7, 7, 2),
 )

@@ -500,8 +500,7 @@ DOMAIN = DomainSpec(
         text_conv=4, correction_mlp=(16, 16), instruction_mlp=(16, 16),
         pair_mlp=(32, 32), pair_final_relu=False, policy_mlp=(256, 256, 256),
     ),
-    # Table 1 (GPL, c0..c5) and Table 3 (c7, c10); Table 1's baselines
+    # Table 1 (GPL, c0..c5) and Table 3 (c7, c10)
     paper_completion={0: 0.65, 1: 0.80, 2: 0.84, 3: 0.85, 4: 0.88, 5: 0.90, 7: 0.91, 10: 0.95},
-    paper_baselines={"instruction": 0.64, "full_information": 0.96},
     full_information_values=full_information_values,
 )
