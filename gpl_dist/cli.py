@@ -122,12 +122,17 @@ def cmd_suite_run(args: argparse.Namespace) -> int:
 
 
 def cmd_suite_status(args: argparse.Namespace) -> int:
-    """``gpl-dist suite status``: each run's state (done, evaluate, resume, new), read from its files."""
+    """``gpl-dist suite status``: each run's state (done, evaluate, resume, new, or running with
+    its driver), read from its files."""
     from gpl_dist.suite import load_suite, plan, run_state
+    from storage.lease import lease_holder
 
     suite = load_suite(args.suite)
     for run in plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ()):
-        print(f"{run_state(run, suite):8s} {run.entry.name} seed {run.seed}  ({run.run_dir})")
+        holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
+        state = "running" if holder else run_state(run, suite)
+        held = f"; {holder.describe()}" if holder else ""
+        print(f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})")
     return 0
 
 

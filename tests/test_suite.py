@@ -86,7 +86,7 @@ def test_a_suite_runs_every_entry_once_and_a_rerun_skips_them(tmp_path):
         plan(suite, out, only=("nope",))
 
 
-def test_a_killed_suite_resumes_without_repeating_a_round(tmp_path):
+def test_a_killed_suite_resumes_without_repeating_a_round(tmp_path, capsys):
     path = write_suite(tmp_path / "suite.yaml", {"gpl": entry(**{"training.num_rounds": 4, "env.max_train_tasks": 24})})
     out = tmp_path / "out"
     run_dir = out / "gpl" / "seed0"
@@ -98,6 +98,8 @@ def test_a_killed_suite_resumes_without_repeating_a_round(tmp_path):
         while not (run_dir / "metrics.jsonl").exists() or not rounds_in(run_dir):
             assert proc.poll() is None and time.monotonic() < deadline, "the suite ended before its first round"
             time.sleep(0.2)
+        assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+        assert capsys.readouterr().out.startswith(f"running  gpl seed 0  ({run_dir}; gpl-dist train (pid ")
     finally:
         os.killpg(proc.pid, signal.SIGKILL)  # our own child's process group
         proc.wait()
@@ -105,6 +107,8 @@ def test_a_killed_suite_resumes_without_repeating_a_round(tmp_path):
     (run,) = plan(suite, out)
     killed_after = rounds_in(run_dir)
     assert run_state(run, suite) == "resume" and len(killed_after) < 4
+    assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.startswith("resume   gpl seed 0")
     run_suite(suite, out, serial=True, progress=False)
     assert rounds_in(run_dir) == [0, 1, 2, 3]
     assert run_state(run, suite) == "done"
