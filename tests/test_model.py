@@ -249,8 +249,8 @@ def test_policy_batchnorm_is_opt_in_and_acts_per_state_at_rollout_time():
 
 @pytest.mark.parametrize("domain_name", ["multiroom", "relocation"])
 def test_mivoa_reads_the_instruction_the_previous_state_and_the_previous_action(domain_name):
-    """Each of MIVOA's three inputs changes its logits; the instruction's vector is the LSTM's
-    state after its last word (padding skipped); it needs the previous step to act."""
+    """Each of MIVOA's three inputs changes its logits; the instruction's vector is the mean of the
+    LSTM's states over its words (padding skipped); it needs the previous step to act."""
     d = get_domain(domain_name)
     model = build_model(d, "mivoa", seed=0).eval()
     assert not model.uses_corrections and model.uses_previous_step
@@ -269,7 +269,7 @@ def test_mivoa_reads_the_instruction_the_previous_state_and_the_previous_action(
                    model(obs, cond, rows, PreviousStep(prev.observations, torch.full((3,), -1))),
                    model(obs, _replace(cond, instruction_ids=other_ids), rows, prev)]
         lstm = model.instruction
-        expected = lstm.lstm(lstm.embedding(words))[0][:, -1]
+        expected = lstm.lstm(lstm.embedding(words))[0].mean(1)  # the mean over the 5 words, not the padding
         torch.testing.assert_close(model.encode_conditioning(cond), expected)
     for other in changed:
         assert (other - base).abs().max() > 1e-5

@@ -3,8 +3,8 @@ Instructions and Visual Observations to Actions with Reinforcement Learning" (EM
 
 Their architecture, at this domain's sizes, trained by DAgger like every method here:
 
-- **instruction**: word embeddings -> an LSTM; its hidden state after the last word (padding
-  skipped) is the instruction's vector;
+- **instruction**: word embeddings -> an LSTM; the mean of its hidden states over the words
+  (padding skipped) is the instruction's vector;
 - **observation**: the current and the previous state stacked (the authors' env option stacks 2
   frames) through a state encoder: on grids the GPL state encoder's 2x2 CNN -> MLP over both
   frames' channels, on vectors the two states concatenated and normalised;
@@ -50,7 +50,7 @@ class PreviousStep:
 
 
 class InstructionLSTM(nn.Module):
-    """Token ids ``(B, L)`` -> the LSTM's hidden state after the last non-padding token ``(B, H)``."""
+    """Token ids ``(B, L)`` -> the mean of the LSTM's hidden states over the non-padding tokens ``(B, H)``."""
 
     def __init__(self, vocab_size: int, pad_id: int, embedding_dim: int, hidden: int):
         super().__init__()
@@ -60,9 +60,9 @@ class InstructionLSTM(nn.Module):
         self.out_dim = hidden
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
-        states, _ = self.lstm(self.embedding(ids))  # (B, L, H)
-        last = ((ids != self.pad_id).long().sum(1) - 1).clamp(min=0)  # an all-padding row reads step 0
-        return states[torch.arange(ids.shape[0], device=ids.device), last]
+        states, _ = self.lstm(self.embedding(ids))  # (B, L, H); padding follows the words, so it
+        words = (ids != self.pad_id).unsqueeze(-1).to(states.dtype)  # never feeds a word's state
+        return (states * words).sum(1) / words.sum(1).clamp(min=1.0)
 
 
 class MIVOAPolicy(nn.Module):
