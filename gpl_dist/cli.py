@@ -114,6 +114,8 @@ def cmd_suite_run(args: argparse.Namespace) -> int:
     """``gpl-dist suite run``: train and evaluate every unfinished run of a suite (resumable)."""
     from gpl_dist.suite import load_suite, run_suite
 
+    if args.serial and args.address:
+        raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
     suite = load_suite(args.suite)
     run_suite(suite, args.out, only=_names(args.only), seeds=_parse_seeds(args.seeds) or (), address=args.address,
               serial=args.serial, progress=not args.no_progress)

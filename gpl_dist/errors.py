@@ -25,4 +25,4 @@ class UsageError(UserError, ValueError):
 
 
 class SuiteError(UserError):
-    """A suite run failed (on a cluster) or its run dir belongs to another version of its entry."""
+    """Suite runs failed on a cluster (each named; running the suite again resumes them)."""

@@ -173,6 +173,12 @@ class Policy(Protocol):
         """Whether ``action_logits`` reads the step before each state (MIVOA does, GPL does not)."""
         ...
 
+    @property
+    def numeric_full_information(self) -> bool:
+        """Whether the conditioning carries the task's full information as numbers
+        (``DomainSpec.full_information_values``) in place of the instruction."""
+        ...
+
     def encode_conditioning(self, cond: Any) -> Any:
         """``(A, D)`` tensor: the instruction and correction history of each attempt row of ``cond``."""
         ...

@@ -107,11 +107,12 @@ class SuiteRun:
     seed: int
     run_dir: Path
 
-    def config(self, suite: Suite) -> RunConfig:
-        """The run's resolved config: base, the entry's overrides, the seed, its first evaluation."""
+    def config(self, suite: Suite, evaluation: str | None = None) -> RunConfig:
+        """The run's resolved config: base, the entry's overrides, the seed, and an evaluation's
+        settings as its ``eval`` section (its first evaluation unless ``evaluation`` is named)."""
         overrides = dict(self.entry.overrides)
         overrides["seed"] = str(self.seed)
-        overrides.update(suite.evaluations[self.entry.evaluations[0]].overrides())
+        overrides.update(suite.evaluations[evaluation or self.entry.evaluations[0]].overrides())
         return load_config(self.entry.base, overrides)
 
 
@@ -154,7 +155,8 @@ def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[s
         _expect(isinstance(key, str) and key != "seed" and not key.startswith("eval."), f"{where}.set",
                 f"'{key}' is the suite's to set (training seeds: seeds; evaluation: evaluations)")
     names = raw["evaluations"]
-    _expect(isinstance(names, list) and bool(names), f"{where}.evaluations", "expected a non-empty list of names")
+    _expect(isinstance(names, list) and bool(names) and all(isinstance(n, str) for n in names), f"{where}.evaluations",
+            "expected a non-empty list of names")
     for n in names:
         _expect(n in evaluations, f"{where}.evaluations", f"unknown evaluation '{n}' (known: {', '.join(evaluations)})")
     overrides = tuple((k, v if isinstance(v, str) else json.dumps(v)) for k, v in sets.items())
@@ -172,9 +174,10 @@ def load_suite(path: str | Path) -> Suite:
     except yaml.YAMLError as err:
         raise ConfigError(f"{path} is not valid YAML ({str(err).splitlines()[0]})") from None
     _keys(str(path), raw, {"evaluations", "entries"}, {"evaluations", "entries"})
-    _keys(f"{path}: evaluations", raw["evaluations"], set(raw["evaluations"] or {}), set())
+    for section in ("evaluations", "entries"):
+        _expect(isinstance(raw[section], dict) and bool(raw[section]), f"{path}: {section}",
+                f"expected a mapping of names, got {type(raw[section]).__name__}")
     evaluations = {n: _evaluation(f"{path}: evaluations.{n}", n, v) for n, v in raw["evaluations"].items()}
-    _keys(f"{path}: entries", raw["entries"], set(raw["entries"] or {}), set())
     entries = []
     for name, spec in raw["entries"].items():
         _expect(isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum(), f"{path}: entries",
@@ -182,7 +185,11 @@ def load_suite(path: str | Path) -> Suite:
         entries.append(_entry(f"{path}: entries.{name}", name, spec, path.parent, evaluations))
     suite = Suite(path, evaluations, tuple(entries))
     for e in suite.entries:
-        SuiteRun(e, e.seeds[0], Path(".")).config(suite)  # fails in one line on a bad key or choice
+        for name in e.evaluations:  # every evaluation's split too, not only the run's own
+            cfg = SuiteRun(e, e.seeds[0], Path(".")).config(suite, name)  # fails in one line on a bad key or choice
+            _expect(not cfg.buffer.location, f"{path}: entries.{e.name}",
+                    "buffer.location would put every run of the suite in one buffer: leave it unset (each run "
+                    "keeps its buffer in its run dir)")
     return suite
 
 
@@ -194,7 +201,7 @@ def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple
     for e in suite.entries:
         if only and e.name not in only:
             continue
-        runs += [SuiteRun(e, s, Path(out) / e.name / f"seed{s}") for s in e.seeds if not seeds or s in seeds]
+        runs += [SuiteRun(e, s, Path(out).resolve() / e.name / f"seed{s}") for s in e.seeds if not seeds or s in seeds]
     return runs
 
 
@@ -226,10 +233,10 @@ def _write_record(run_dir: Path, record: dict) -> None:
     tmp.replace(run_dir / "suite-run.json")
 
 
-def _started(run_dir: Path, record: dict) -> None:
-    """Record this process's commit before it trains: a run killed and resumed lists every
-    commit that trained a round of it."""
-    record["commits"] = sorted(set(record["commits"]) | {code_commit()})
+def _started(run_dir: Path, record: dict, commit: str) -> None:
+    """Record the code's commit before it trains: a run killed and resumed lists every commit that
+    trained a round of it."""
+    record["commits"] = sorted(set(record["commits"]) | {commit})
     run_dir.mkdir(parents=True, exist_ok=True)
     _write_record(run_dir, record)
 
@@ -253,14 +260,21 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
         return "new"  # nothing but lease files: a driver stopped before writing anything
     if not ckpt.is_file() or load_checkpoint(ckpt).round_index + 1 < cfg.training.num_rounds:
         return "resume"
-    record = read_record(run.run_dir) or {}
-    done = set(record.get("evaluations", {}))
-    return "done" if set(run.entry.evaluations) <= done else "evaluate"
+    done = (read_record(run.run_dir) or {}).get("evaluations", {})
+    for name, ev in done.items():
+        now = json.loads(json.dumps(dataclasses.asdict(suite.evaluations[name]))) if name in suite.evaluations else None
+        if now is not None and ev.get("settings") != now:  # compared as recorded: JSON lists, not tuples
+            raise ConfigError(f"{run.run_dir}: evaluation '{name}' was made with other settings than the suite "
+                              f"gives now ({ev.get('settings')}): use another --out, or delete {ev.get('file')} and "
+                              f"its entry in suite-run.json to evaluate it again")
+    return "done" if set(run.entry.evaluations) <= set(done) else "evaluate"
 
 
 def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: bool = False, progress: bool = True,
-            log=print) -> dict:
-    """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written."""
+            log=print, commit: str | None = None) -> dict:
+    """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written.
+    ``commit`` names the code in the records (default: this process's ``code_commit()``)."""
+    commit = commit or code_commit()
     from learner.driver import run_training
     from learner.evaluate import evaluate_run
 
@@ -269,7 +283,7 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
-        _started(run.run_dir, record)
+        _started(run.run_dir, record, commit)
         t0 = time.perf_counter()
         run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
                      progress=progress)
@@ -284,7 +298,7 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
         _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
                                max_tasks=ev.max_tasks, greedy=ev.greedy_actions)
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
-                                       "commit": code_commit(), "settings": dataclasses.asdict(ev)}
+                                       "commit": commit, "settings": dataclasses.asdict(ev)}
         _write_record(run.run_dir, record)
     return record
 
@@ -298,9 +312,14 @@ def run_suite(suite: Suite, out: str | Path, *, only: tuple[str, ...] = (), seed
     workers (``serial``: one worker in this process, without Ray). With ``address`` (a Ray
     cluster): every unfinished run at once, each a Ray task that drives its own rollout actors on
     the cluster (``OUT`` must then be on storage every node sees); Ray queues what does not fit.
+    One after another, the first run that fails stops the suite (its error names it); on a
+    cluster the other runs go on and the failures are reported together. Either way, running
+    the suite again resumes.
     """
-    code_commit()  # this process's code, before anything can change the checkout
+    commit = code_commit()  # this process's code, before anything can change the checkout
     runs = plan(suite, out, only, seeds)
+    if not runs:
+        raise ConfigError(f"{suite.path}: --only/--seeds select no run (entries: {', '.join(e.name for e in suite.entries)})")
     before = [(r, run_state(r, suite)) for r in runs]  # refuses a changed entry before anything runs
     Path(out).mkdir(parents=True, exist_ok=True)
     (Path(out) / "suite.yaml").write_text(suite.path.read_text())
@@ -310,8 +329,8 @@ def run_suite(suite: Suite, out: str | Path, *, only: tuple[str, ...] = (), seed
             log(f"[{run.entry.name} seed {run.seed}] done: skipped")
     if address is None:
         for run in todo:
-            execute(run, suite, serial=serial, progress=progress, log=log)
+            execute(run, suite, serial=serial, progress=progress, log=log, commit=commit)
     elif todo:
         from gpl_dist.suite_ray import execute_on_cluster
-        execute_on_cluster(todo, suite, address, log=log)
+        execute_on_cluster(todo, suite, address, commit, log=log)
     return before

@@ -1,8 +1,9 @@
 """A suite's runs as Ray tasks on a cluster: the one place the suite runner touches Ray.
 
-Each unfinished (entry, seed) becomes one task (1 CPU: its driver and learner) that runs
-``gpl_dist.suite.execute``; inside it the run's ``RayCollector`` finds Ray already connected and
-starts its rollout actors (1 CPU each) on the same cluster. Runs are started only while the
+Each unfinished (entry, seed) becomes one task (1 CPU: its driver, with the learner unless that
+is a GPU actor) that runs ``gpl_dist.suite.execute``; inside it the run's ``RayCollector`` finds
+Ray already connected and starts its rollout actors (1 CPU each) on the same cluster. The records
+name the commit the suite's driver runs, not what a worker node's checkout says. Runs are started only while the
 cluster's CPUs hold every started run's task and actors: a run's task waiting for CPUs that other
 runs' tasks hold, while those wait for their actors, would never finish. A task that fails is
 reported and the others go on; running the suite again resumes it from its files.
@@ -18,16 +19,18 @@ from workers.ray_pool import init_ray
 
 
 @ray.remote(num_cpus=1, max_retries=0)
-def _execute_task(run: SuiteRun, suite: Suite) -> dict:
-    return execute(run, suite, address="auto", progress=False, log=lambda line: print(line, flush=True))
+def _execute_task(run: SuiteRun, suite: Suite, commit: str) -> dict:
+    return execute(run, suite, address="auto", progress=False, log=lambda line: print(line, flush=True), commit=commit)
 
 
 def cpus_per_run(run: SuiteRun, suite: Suite) -> int:
-    """CPUs one run holds on the cluster: its task and its rollout actors."""
-    return 1 + run.config(suite).collection.num_workers
+    """CPUs one run holds on the cluster: its task (its driver and first learner), its further
+    data-parallel learner processes, and its rollout actors."""
+    cfg = run.config(suite)
+    return max(1, cfg.training.num_learners) + cfg.collection.num_workers
 
 
-def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, log=print) -> None:
+def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, commit: str, log=print) -> None:
     """Run ``runs`` on the Ray cluster at ``address``, as many at once as its CPUs hold; raise
     after all ended if any failed."""
     init_ray(address, num_workers=1)
@@ -43,7 +46,7 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, log=pri
         while queue and cpus_per_run(queue[0], suite) <= free:
             run = queue.pop(0)
             free -= cpus_per_run(run, suite)
-            pending[_execute_task.remote(run, suite)] = run
+            pending[_execute_task.remote(run, suite, commit)] = run
             log(f"[{run.entry.name} seed {run.seed}] started on the cluster")
         done, _ = ray.wait(list(pending), num_returns=1)
         run = pending.pop(done[0])

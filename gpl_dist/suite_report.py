@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.errors import RunDirError
+from gpl_dist.suite import RECORD_VERSION
 
 
 @dataclass(frozen=True)
@@ -148,10 +149,13 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
         raise RunDirError(f"no suite output at {root}")
     results = []
     for record_path in sorted(root.glob("*/seed*/suite-run.json")):
-        record = json.loads(record_path.read_text())
+        record = _read_json(record_path)
+        if record.get("version") != RECORD_VERSION:
+            raise RunDirError(f"{record_path} is a suite record of version {record.get('version')}; this report "
+                              f"reads version {RECORD_VERSION}")
         run_dir = record_path.parent
         for name, ev in record.get("evaluations", {}).items():
-            payload = json.loads((run_dir / ev["file"]).read_text())
+            payload = _read_json(run_dir / ev["file"])
             settings = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in ev["settings"].items())
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
                                      tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
@@ -159,6 +163,17 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
                                      float(ev.get("seconds", 0.0))))
     _check_same_settings(results)
     return results
+
+
+def _read_json(path: Path) -> dict:
+    """A record or eval file; a missing or damaged one fails in one line naming it."""
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err})") from None
+    if not isinstance(value, dict):
+        raise RunDirError(f"{path} does not hold a JSON object")
+    return value
 
 
 def _check_same_settings(results: list[RunResult]) -> None:

@@ -33,7 +33,7 @@ class TensorView:
         context_rows: int64 ``(A, K)`` rows of the earlier attempts, -1 padded.
         trajectories: ``(A, S, *O)`` subsampled attempts.
         previous_rows: int64 ``(N,)`` row of the state before each one in its attempt (its own
-            row at t = 0); None when the view has no timesteps.
+            row at t = 0); None unless built with ``previous_steps``.
         previous_actions: int64 ``(N,)`` the action executed in that state; -1 at t = 0.
         attempt_task_ids: int64 ``(A,)`` each attempt's task; None when the view has none.
         instruction_values: float32 ``(A, F)`` numeric full information of each attempt
@@ -56,14 +56,15 @@ class TensorView:
     attempt_rewards: torch.Tensor | None = None
 
     @classmethod
-    def from_view(cls, view) -> "TensorView":
+    def from_view(cls, view, previous_steps: bool = False) -> "TensorView":
+        """Torch views of ``view``'s arrays; ``previous_steps`` also finds each state's previous
+        step (a sort over the states: only for a model that reads it)."""
         # np.array(copy) only when the loader handed out read-only memory
         t = lambda a: torch.from_numpy(a if a.flags.writeable and a.flags.c_contiguous else np.array(a))  # noqa: E731
         probs = getattr(view, "expert_probs", None)
         if probs is not None and bool((probs.max(axis=1) == 1.0).all()):
             probs = None
-        prev_rows, prev_actions = (previous_steps(view) if hasattr(view, "timesteps") and hasattr(view, "actions")
-                                   else (None, None))
+        prev_rows, prev_actions = find_previous_steps(view) if previous_steps else (None, None)
         return cls(t(view.observations), t(view.expert_actions).long(), t(view.attempt_rows).long(),
                    t(view.instruction_ids).long(), t(view.correction_ids).long(), t(view.context_rows).long(),
                    t(view.trajectories), expert_probs=None if probs is None else t(probs),
@@ -106,7 +107,7 @@ class TensorView:
     def previous(self, idx: torch.Tensor) -> PreviousStep:
         """The step before each of states ``idx`` (for ``MIVOAPolicy``)."""
         if self.previous_rows is None or self.previous_actions is None:
-            raise ValueError("this view has no timesteps: the previous step of a state is unknown")
+            raise ValueError("this view was built without previous steps (TensorView.from_view(view, previous_steps=True))")
         return PreviousStep(self.observations[self.previous_rows[idx]], self.previous_actions[idx])
 
     def batch(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor]:
@@ -130,7 +131,7 @@ class TensorView:
         return self.observations[idx], self.expert_actions[idx], cond, inverse
 
 
-def previous_steps(view) -> tuple[np.ndarray, np.ndarray]:
+def find_previous_steps(view) -> tuple[np.ndarray, np.ndarray]:
     """``(previous_rows, previous_actions)`` of every state of ``view`` (see ``TensorView``): found
     by sorting on (attempt, t), so they hold in whatever order the view lists its states."""
     rows, t = np.asarray(view.attempt_rows), np.asarray(view.timesteps)

@@ -92,8 +92,7 @@ class ProcessGroup:
 def _shared(tv: TensorView) -> TensorView:
     """A copy of ``tv`` in shared memory: the helpers map it instead of receiving copies. A
     ``LearnerFailed`` in one line when /dev/shm cannot hold it (containers often give 64 MB)."""
-    need = sum(t.numel() * t.element_size() for t in (getattr(tv, f.name) for f in dataclasses.fields(tv))
-               if t is not None)
+    need = tv.nbytes
     if os.path.isdir("/dev/shm") and shutil.disk_usage("/dev/shm").free < need:
         raise LearnerFailed(f"/dev/shm has {shutil.disk_usage('/dev/shm').free / 2**20:.0f} MiB free, the training "
                             f"view needs {need / 2**20:.0f} MiB in shared memory for the data-parallel learners; "
@@ -164,7 +163,8 @@ class DataParallelLearner:
         return self._local.weights()
 
     def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:
-        tv = view if isinstance(view, TensorView) else TensorView.from_view(view)
+        tv = view if isinstance(view, TensorView) else TensorView.from_view(
+            view, previous_steps=bool(getattr(self._local.model, "uses_previous_step", False)))
         dead = [p.name for p in self._procs if not p.is_alive()]
         if dead:
             raise LearnerFailed(f"learner process(es) {', '.join(dead)} exited; restart the run with --resume")

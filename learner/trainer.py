@@ -200,7 +200,9 @@ class Learner:
         return state_dict_to_numpy(self.model)
 
     def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:
-        tv = self._on_device(self._with_inputs(view if isinstance(view, TensorView) else TensorView.from_view(view)))
+        if not isinstance(view, TensorView):
+            view = TensorView.from_view(view, previous_steps=bool(getattr(self.model, "uses_previous_step", False)))
+        tv = self._on_device(self._with_inputs(view))
         n = tv.num_states
         start = time.perf_counter()
         steps, loss_sum, correct, seen = 0, 0.0, 0, 0

@@ -50,6 +50,11 @@ def rounds_in(run_dir: Path) -> list[int]:
     ({"entries": {"a/b": entry()}}, "names a folder"),
     ({"evaluations": {"test": {"split": "test", "seeds": [0], "num_corrections": "5", "greedy_actions": False}}},
      "expected int"),
+    ({"evaluations": {"test": {"split": "test", "seeds": [0], "num_corrections": 2, "greedy_actions": False},
+                      "later": {"split": "nope", "seeds": [0], "num_corrections": 2, "greedy_actions": False}},
+      "entries": {"a": entry(evaluations=("test", "later"))}}, "eval.split"),  # a later evaluation is checked too
+    ({"entries": {"a": entry(**{"buffer.location": "/tmp/one-buffer"})}}, "buffer.location would put"),
+    ({"evaluations": [{"split": "test"}]}, "expected a mapping of names"),
 ])
 def test_a_bad_suite_fails_in_one_line_before_anything_runs(tmp_path, capsys, change, needle):
     spec = {"evaluations": {"test": {"split": "test", "seeds": [0], "num_corrections": 2, "greedy_actions": False}},
@@ -158,3 +163,19 @@ def test_a_suite_on_a_ray_cluster_runs_its_entries_as_tasks(tmp_path, ray_cluste
     run_suite(suite, out, address=address, progress=False)
     for run in plan(suite, out):
         assert run_state(run, suite) == "done" and rounds_in(run.run_dir) == [0]
+
+
+def test_a_changed_evaluation_and_an_empty_selection_are_refused(tmp_path, capsys):
+    out = tmp_path / "out"
+    ev = {"split": "test", "seeds": [0], "num_corrections": 2, "greedy_actions": False, "max_tasks": 2}
+    first = write_suite(tmp_path / "a.yaml", {"gpl": entry(evaluations=("test", "more"), **{"training.num_rounds": 1})},
+                        {"test": ev, "more": {**ev, "num_corrections": 3}})
+    run_suite(load_suite(first), out, serial=True, progress=False)
+    changed = write_suite(tmp_path / "b.yaml", {"gpl": entry(evaluations=("test", "more"), **{"training.num_rounds": 1})},
+                          {"test": ev, "more": {**ev, "num_corrections": 4}})
+    assert main(["suite", "run", str(changed), "--out", str(out), "--serial"]) == 2
+    _one_line_error(capsys, "evaluation 'more' was made with other settings")
+    assert main(["suite", "run", str(first), "--out", str(out), "--serial", "--seeds", "7"]) == 2
+    _one_line_error(capsys, "select no run")
+    assert main(["suite", "run", str(first), "--out", str(out), "--serial", "--address", "auto"]) == 2
+    _one_line_error(capsys, "give one of them")

@@ -160,8 +160,7 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
     assert tv.to(torch.device("cpu")) is tv
     assert tv.nbytes == sum(getattr(tv, f).nbytes for f in ("observations", "expert_actions", "attempt_rows",
                                                              "instruction_ids", "correction_ids", "context_rows",
-                                                             "trajectories", "previous_rows", "previous_actions",
-                                                             "attempt_task_ids", "attempt_rewards"))
+                                                             "trajectories", "attempt_task_ids", "attempt_rewards"))
     results = {}
     for device in ["cpu"] + (["cuda"] if torch.cuda.is_available() else []):
         learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg(device=device, num_epochs_per_round=2))
@@ -177,7 +176,8 @@ def test_a_round_on_every_device_here_matches_the_cpu(tmp_path):
 
 def test_previous_steps_of_a_view_follow_each_attempt(tmp_path):
     view = _view(tmp_path, rounds=2)
-    tv = TensorView.from_view(view)
+    assert TensorView.from_view(view).previous_rows is None  # found only for a model that reads them
+    tv = TensorView.from_view(view, previous_steps=True)
     prev, actions = tv.previous_rows.numpy(), tv.previous_actions.numpy()
     t, rows = view.timesteps, view.attempt_rows
     first = t == 0
@@ -212,6 +212,46 @@ def test_baselines_train_and_are_evaluated_through_the_one_rollout_loop(tmp_path
         if variant != "gpr":
             assert all(len(m.completion_by_corrections) == 1 for m in result.history)  # one attempt per task
         evaluation, _ = evaluate_run(run)
-        assert evaluation.num_tasks == 2 and len(evaluation.completion) >= 1
+        # a method without corrections makes one attempt per task: one completion figure
+        assert evaluation.num_tasks == 2 and len(evaluation.completion) == (1 if variant != "gpr" else 6)
         view = BufferReader(run / "buffer").load_training_view()
         assert view.reward_sum.shape == view.completion.shape and np.isfinite(view.reward_sum).all()
+
+
+@pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("multiroom", "gpr"), ("relocation", "gpr"),
+                                                 ("relocation", "full_information"), ("multiroom", "mivoa"),
+                                                 ("relocation", "mivoa"), ("multiroom", "mivoa_full_information")])
+def test_the_learner_feeds_every_method_what_the_worker_acted_on(tmp_path, domain_name, variant):
+    """Per state, the logits the worker acted with equal the logits of the learner's batch of the
+    stored tuples (through ``Learner``'s own input preparation): the same conditioning, summed
+    rewards, numeric full information and previous steps in collection and in training."""
+    domain = get_domain(domain_name)
+    worker = make_worker(domain_name, num_corrections=2, variant=variant,
+                         trajectory_ends_at_last_state=domain_name == "relocation")
+    acted: list[torch.Tensor] = []
+    act = worker.model.action_logits
+    worker.model.action_logits = lambda obs, z, previous=None: acted.append(act(obs, z, previous)) or acted[-1]
+    tasks = (1, 2, 3)
+    unit = WorkUnit(round_index=0, unit_index=0, task_ids=tasks, split="train", seed=5, policy_version=0)
+    attempts = worker.collect(unit.task_ids, unit.split, seed=unit.seed, round_index=0)
+    steps = domain.steps_per_attempt
+    logits_worker = {}
+    for k in range(1 + max(a.attempt_index for a in attempts)):
+        active = [a.task_id for a in attempts if a.attempt_index == k]
+        for t in range(steps):
+            for j, task in enumerate(active):
+                logits_worker[(task, k, t)] = acted[k * steps + t][j]
+
+    root = tmp_path / "run"
+    commit_round(root, 0, [ShardWriter(root, "r").write_unit(unit, attempts, worker_id="w")])
+    view = BufferReader(root).load_training_view(10**9, domain.trajectory_stride, domain_name == "relocation")
+    learner = Learner(build_model(domain, variant, seed=9), _cfg())
+    tv = learner._with_inputs(TensorView.from_view(view, previous_steps=worker.model.uses_previous_step))
+    idx = torch.arange(tv.num_states)
+    obs, _, cond, rows, _, previous = learner._gather(tv, idx)
+    with torch.inference_mode():
+        logits_learner = worker.model(obs, cond, rows, previous)
+    for i in range(tv.num_states):
+        a = view.attempt_rows[i]
+        key = (int(view.task_id[a]), int(view.attempt_index[a]), int(view.timesteps[i]))
+        torch.testing.assert_close(logits_learner[i], logits_worker[key], rtol=0, atol=1e-5)

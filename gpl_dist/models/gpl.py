@@ -415,6 +415,9 @@ class GPLPolicy(nn.Module):
         if cond.correction_values is None:
             raise ValueError("GPR reads each earlier attempt's summed reward: Conditioning.correction_values is missing")
         r = cond.correction_values.float()
+        if bool(torch.isnan(r).any()):
+            raise ValueError("GPR got an attempt without a recorded reward sum (a buffer written before schema 3): "
+                             "train GPR on a buffer collected by this version")
         return self.correction((torch.sign(r) * torch.log1p(r.abs())).unsqueeze(1))
 
     def action_logits(self, obs: torch.Tensor, z: torch.Tensor, previous=None) -> torch.Tensor:
