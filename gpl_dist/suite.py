@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import os
 import subprocess
 import time
 from dataclasses import dataclass
@@ -209,7 +210,10 @@ def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple
 def code_commit() -> str:
     """The git commit of the code this process runs, read once, when first asked (``run_suite``
     asks before any run: a commit made while a suite runs does not relabel its runs), with
-    ``+dirty`` when tracked files differ; ``unknown`` outside a git checkout."""
+    ``+dirty`` when tracked files differ; ``$GPL_DIST_COMMIT`` where the code came without its
+    ``.git`` (a Ray job's upload); else ``unknown``."""
+    if os.environ.get("GPL_DIST_COMMIT"):
+        return os.environ["GPL_DIST_COMMIT"][:64]
     here = Path(__file__).resolve().parent
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,

@@ -281,6 +281,10 @@ def provenance_markdown(results: list[RunResult], suite_out: Path) -> str:
         first = mine[0]
         commits = ", ".join(first.commits)
         lines.append(f"| {entry} | {seed} | `{run_dir}` | {commits} | {first.train_seconds / 60:.1f} | {evals} |")
+    train_s = sum({r.run_dir: r.train_seconds for r in results}.values())
+    eval_s = sum(r.eval_seconds for r in results)
+    lines.append(f"\nWall time of these runs: {train_s / 3600:.1f} h training, {eval_s / 3600:.2f} h evaluation, "
+                 "as each run's process measured it on the machine it ran on.")
     return "\n".join(lines)
 
 
