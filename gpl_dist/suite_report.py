@@ -128,6 +128,8 @@ class RunResult:
     commits: tuple[str, ...]
     train_seconds: float
     eval_seconds: float
+    effort: dict | None = None
+    """The evaluation's ``correction_effort`` (``learner.evaluate.CorrectionEffort``), None in older files."""
 
 
 @dataclass(frozen=True)
@@ -160,7 +162,7 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
                                      tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),
-                                     float(ev.get("seconds", 0.0))))
+                                     float(ev.get("seconds", 0.0)), payload.get("correction_effort")))
     _check_same_settings(results)
     return results
 
@@ -288,6 +290,24 @@ def provenance_markdown(results: list[RunResult], suite_out: Path) -> str:
     return "\n".join(lines)
 
 
+_EFFORT = (("corrections_to_solve", "corrections per solved task"), ("words_per_solved_task", "words per solved task"),
+           ("unsolved_fraction", "unsolved"), ("completion_auc", "completion AUC"))
+
+
+def effort_markdown(results: list[RunResult], evaluation: str = "test") -> str:
+    """Correction effort of every entry's ``evaluation``, mean over training seeds."""
+    lines = ["| entry | " + " | ".join(label for _, label in _EFFORT) + " | training seeds |",
+             "|---|" + "---|" * (len(_EFFORT) + 1)]
+    for entry in sorted({r.entry for r in results if r.evaluation == evaluation}):
+        mine = [r for r in results if r.entry == entry and r.evaluation == evaluation and r.effort]
+        cells = []
+        for key, _ in _EFFORT:
+            values = [r.effort[key] for r in mine if r.effort and r.effort.get(key) is not None]  # type: ignore[index]
+            cells.append(f"{statistics.fmean(values):.3f}" if values else "—")
+        lines.append(f"| {entry} | " + " | ".join(cells) + f" | {len(mine)} |")
+    return "\n".join(lines)
+
+
 def evaluations_markdown(results: list[RunResult]) -> str:
     """Each evaluation's settings, as every run recorded them (identical: ``_check_same_settings``)."""
     lines = ["| evaluation | split | evaluation seeds | corrections | actions | tasks |", "|---|---|---|---|---|---|"]
@@ -314,10 +334,15 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
+    effort = effort_markdown(results)
     settings = evaluations_markdown(results)
     prov = provenance_markdown(results, suite_out)
-    parts += ["## Evaluation settings", settings, "## Runs", prov]
-    html_parts += ["<h2>Evaluation settings</h2>", _md_table_html(settings), "<h2>Runs</h2>", _md_table_html(prov)]
+    effort_intro = ("What the corrections cost on the test tasks (evaluation 'test'): corrections and words of "
+                    "correction before the first success, over the solved tasks; the fraction never solved within "
+                    "the budget; the area under the completion curve over its length.")
+    parts += ["## Correction effort", effort_intro, effort, "## Evaluation settings", settings, "## Runs", prov]
+    html_parts += ["<h2>Correction effort</h2>", f"<p>{html.escape(effort_intro)}</p>", _md_table_html(effort),
+                   "<h2>Evaluation settings</h2>", _md_table_html(settings), "<h2>Runs</h2>", _md_table_html(prov)]
     md_path, html_path = out / "report.md", out / "report.html"
     md_path.write_text("# The paper's experiments, reproduced\n\n" + "\n\n".join(parts) + "\n")
     html_path.write_text("<!doctype html><meta charset='utf-8'><title>gpl-dist: the paper's experiments</title>"

@@ -14,6 +14,7 @@ checkpoint are used; any other setting gets its own name (``eval-greedy.json``,
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import os
 import time
@@ -35,6 +36,49 @@ from workers.rollout import completion_by_attempt
 
 
 @dataclass(frozen=True)
+class CorrectionEffort:
+    """What it took a person (here, the oracle) to get the tasks solved, over every (seed, task).
+
+    Attributes:
+        corrections_to_solve: mean number of corrections before the first successful attempt,
+            over the tasks solved within the budget; None when none was.
+        unsolved_fraction: fraction of the tasks not solved within the budget.
+        words_per_solved_task: mean number of words of correction given before the success, over
+            the solved tasks; None when none was.
+        completion_auc: area under the completion-against-corrections curve divided by its
+            length (the mean of the curve by the trapezoid rule; the one value for a policy
+            without corrections), in [0, 1].
+    """
+
+    corrections_to_solve: float | None
+    unsolved_fraction: float
+    words_per_solved_task: float | None
+    completion_auc: float
+
+
+def correction_effort(attempts_per_seed: list[list], completion: list[float]) -> CorrectionEffort:
+    """``CorrectionEffort`` of the attempts of every seed and the mean completion curve."""
+    to_solve, words, unsolved = [], [], 0
+    for attempts in attempts_per_seed:
+        by_task: dict[int, list] = {}
+        for a in attempts:
+            by_task.setdefault(a.task_id, []).append(a)
+        for per in by_task.values():
+            per.sort(key=lambda a: a.attempt_index)
+            first = next((a.attempt_index for a in per if a.success), None)
+            if first is None:
+                unsolved += 1
+                continue
+            to_solve.append(first)
+            words.append(sum(len(a.correction.split()) for a in per if a.attempt_index < first))
+    total = len(to_solve) + unsolved
+    n = len(completion)  # the trapezoid rule, over unit steps
+    auc = (sum(completion) - (completion[0] + completion[-1]) / 2) / (n - 1) if n > 1 else float(completion[0])
+    return CorrectionEffort(float(np.mean(to_solve)) if to_solve else None, unsolved / max(total, 1),
+                            float(np.mean(words)) if words else None, auc)
+
+
+@dataclass(frozen=True)
 class EvalResult:
     """Meta-test results.
 
@@ -45,6 +89,7 @@ class EvalResult:
         per_seed: completion curve of each seed.
         num_tasks: tasks evaluated per seed.
         seconds: wall time.
+        effort: what the corrections cost (``CorrectionEffort``).
     """
 
     completion: list
@@ -53,6 +98,7 @@ class EvalResult:
     per_seed: list
     num_tasks: int
     seconds: float
+    effort: CorrectionEffort
 
 
 def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
@@ -76,7 +122,7 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
     model.eval()
     start = time.perf_counter()
     max_attempts = num_corrections + 1 if model.uses_corrections else 1
-    curves, successes = [], []
+    curves, successes, per_seed = [], [], []
     try:
         for seed in seeds:
             attempts: list = []
@@ -85,12 +131,15 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
                                         policy_version=0).attempts
             curves.append(completion_by_attempt(attempts, max_attempts))
             successes.append(_success_by_attempt(attempts, max_attempts))
+            per_seed.append(attempts)
     finally:
         model.train(was_training)
     curves_arr = np.array(curves)
-    return EvalResult(completion=curves_arr.mean(0).tolist(), completion_std=curves_arr.std(0).tolist(),
+    completion = curves_arr.mean(0).tolist()
+    return EvalResult(completion=completion, completion_std=curves_arr.std(0).tolist(),
                       success=np.mean(successes, axis=0).tolist(), per_seed=curves_arr.tolist(),
-                      num_tasks=len(tasks), seconds=time.perf_counter() - start)
+                      num_tasks=len(tasks), seconds=time.perf_counter() - start,
+                      effort=correction_effort(per_seed, completion))
 
 
 def _success_by_attempt(attempts: list, max_attempts: int) -> np.ndarray:
@@ -110,6 +159,10 @@ def format_table(domain: str, result: EvalResult, with_paper: bool = True) -> st
     for k, (c, sd, s) in enumerate(zip(result.completion, result.completion_std, result.success)):
         p = (f" {paper[k]:>6.3f}" if k in paper else f" {'-':>6}") if with_paper else ""
         lines.append(f"{'c' + str(k):>11} {c:10.3f} {sd:7.3f} {s:8.3f}{p}")
+    e = result.effort
+    show = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+    lines.append(f"correction effort: {show(e.corrections_to_solve)} corrections and {show(e.words_per_solved_task)} words "
+                 f"per solved task, {e.unsolved_fraction:.3f} unsolved, completion AUC {e.completion_auc:.3f}")
     return "\n".join(lines)
 
 
@@ -195,6 +248,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "greedy_actions": greedy, "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
+               "correction_effort": dataclasses.asdict(result.effort),
                "paper_completion": {str(k2): v for k2, v in get_domain(cfg.env.domain).paper_completion.items()},
                "reduced_scale": reduced_scale(cfg)}
     path = run_dir / f"{stem}.json"

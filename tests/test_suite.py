@@ -146,6 +146,11 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     assert f"{statistics.fmean(per_seed):.3f} ± {statistics.stdev(per_seed):.3f} (0.46)" in gpl_row
     assert "2 training seed(s): 0, 1" in gpl_row
     assert "not in the paper either" in md and "not run yet" in md
+    effort = json.loads((out / "multiroom-gpl" / "seed0" / "eval.json").read_text())["correction_effort"]
+    effort_row = next(line for line in md.splitlines() if line.startswith("| multiroom-gpl |"))
+    auc = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["correction_effort"]["completion_auc"]
+           for s in (0, 1)]
+    assert f"{statistics.fmean(auc):.3f}" in effort_row and effort["unsolved_fraction"] >= 0
     results = collect_results(out)
     assert {(r.entry, r.evaluation) for r in results} == {("multiroom-gpl", "test"), ("multiroom-gpl", "test-c10"),
                                                           ("multiroom-instruction", "test")}
