@@ -148,11 +148,21 @@ def cmd_suite_report(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    """``gpl-dist render``: a task's start state as PNG, or an attempt as GIF."""
-    from gpl_dist.rendering import attempt_frames, parse_actions, write_picture
+    """``gpl-dist render``: a task's start state as PNG, an attempt as GIF, or a trained policy's
+    successive attempts with the corrections between them (``--run-dir``)."""
+    from gpl_dist.rendering import attempt_frames, parse_actions, policy_attempt_frames, write_picture
 
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if args.run_dir:
+        if args.env or args.actions or args.expert:
+            raise UsageError("--run-dir draws the run's policy on its own domain: leave out --env, --actions and --expert")
+        frames = policy_attempt_frames(args.run_dir, args.task, args.attempts, seed=args.seed, checkpoint=args.checkpoint)
+        out = write_picture(frames, args.out)
+        print(f"wrote {out} ({len(frames)} frames)")
+        return 0
+    if not args.env:
+        raise UsageError("--env is required (or --run-dir, to draw a trained policy's attempts)")
     actions = parse_actions(args.actions) if args.actions else None
     frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
     out = write_picture(frames, args.out)
@@ -289,8 +299,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
     q.set_defaults(func=cmd_suite_report)
 
-    p = sub.add_parser("render", help="draw a task (PNG) or an attempt (GIF)")
-    p.add_argument("--env", required=True, choices=domain_names())
+    p = sub.add_parser("render", help="draw a task (PNG), an attempt (GIF), or a trained policy's attempts (GIF)")
+    p.add_argument("--env", choices=domain_names())
+    p.add_argument("--run-dir", help="draw this run's trained policy: its successive attempts and the corrections between")
+    p.add_argument("--attempts", type=int, default=5, help="with --run-dir: attempts to draw (corrections + 1)")
+    p.add_argument("--checkpoint", help="with --run-dir: checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     p.add_argument("--task", required=True, type=int)
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
     drawn = p.add_mutually_exclusive_group()

@@ -69,3 +69,71 @@ def write_picture(frames: list[np.ndarray], out: str | Path, fps: int = 8) -> Pa
     else:
         Image.fromarray(frames[-1] if len(frames) > 1 else frames[0]).save(out)
     return out
+
+
+#: Pixels of the caption bar under each frame of a policy's attempts.
+CAPTION_PX = 44
+#: Characters of a caption line (a correction is cut there, with "...").
+CAPTION_CHARS = 64
+
+
+def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, seed: int = 0,
+                          checkpoint: str | None = None, frame_stride: int | None = None) -> list[np.ndarray]:
+    """Frames of a trained policy's successive attempts at ``task_id``, as at meta-test.
+
+    The run's policy makes up to ``num_attempts`` attempts, each after the oracle's correction of
+    the one before (the run's own conditioning and oracle, ``workers.loop.Rollout``); each attempt
+    is then replayed from its reset seed and actions to draw it. Every frame carries a caption:
+    the attempt, the correction that led to it (the instruction for the first), and the attempt's
+    completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt).
+    """
+    from gpl_dist.config import config_from_dict
+    from gpl_dist.corrections import make_corrector
+    from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, build_model_from_config
+    from learner.checkpoint import LATEST, load_checkpoint, load_model_state
+    from workers.loop import Rollout
+
+    if num_attempts < 1:
+        raise UsageError(f"--attempts must be at least 1, got {num_attempts}")
+    ckpt_file = Path(checkpoint) if checkpoint else Path(run_dir) / "checkpoints" / LATEST
+    ckpt = load_checkpoint(ckpt_file)
+    cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
+    domain = get_domain(cfg.env.domain)
+    if not 0 <= task_id < domain.num_tasks:
+        raise UsageError(f"task {task_id} is outside 0..{domain.num_tasks - 1} of {domain.name}")
+    model = build_model_from_config(domain, cfg.model)
+    load_model_state(model, ckpt, ckpt_file)
+    model.eval()
+    rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind),
+                      end_aligned=cfg.model.trajectory_ends_at_last_state,
+                      full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
+    result = rollout.run([task_id], num_attempts - 1, seed, split="render")
+    if result.failures:
+        raise UsageError(str(result.failures[0]))
+    stride = frame_stride or max(1, domain.steps_per_attempt // 40)
+    frames: list[np.ndarray] = []
+    for k, att in enumerate(result.attempts):
+        said = att.instruction if k == 0 else result.attempts[k - 1].correction
+        top = f"attempt {k + 1}/{len(result.attempts)}: {'instruction' if k == 0 else 'correction'}: {said}"
+        bottom = f"completion {att.completion:.2f}" + (" - solved" if att.success else "")
+        drawn = attempt_frames(domain.name, task_id, att.actions.tolist(), seed=att.seed)
+        for t in [*range(0, len(drawn) - 1, stride), len(drawn) - 1]:
+            frames.append(_captioned(drawn[t], top, bottom if t == len(drawn) - 1 else f"step {t}"))
+        frames += [frames[-1]] * 6  # hold the attempt's end for a moment
+    return frames
+
+
+def _captioned(frame: np.ndarray, top: str, bottom: str, width_px: int = 400) -> np.ndarray:
+    """``frame``, scaled to ``width_px`` wide, over a white bar holding two lines of text."""
+    from PIL import ImageDraw
+
+    image = Image.fromarray(frame)
+    image = image.resize((width_px, round(image.height * width_px / image.width)))
+    w, h = image.size
+    canvas = Image.new("RGB", (w, h + CAPTION_PX), "white")
+    canvas.paste(image, (0, 0))
+    draw = ImageDraw.Draw(canvas)
+    cut = lambda text: text if len(text) <= CAPTION_CHARS else text[: CAPTION_CHARS - 3] + "..."  # noqa: E731
+    draw.text((6, h + 4), cut(top), fill="black")
+    draw.text((6, h + 24), cut(bottom), fill="black")
+    return np.asarray(canvas)

@@ -29,6 +29,35 @@ def test_render_errors_are_one_line(tmp_path, capsys):
     assert "outside" in capsys.readouterr().err
 
 
+def test_render_draws_a_trained_policys_attempts_with_the_corrections_between(tmp_path, capsys, monkeypatch):
+    run = tmp_path / "run"
+    assert main(["train", "--config", "configs/multiroom-smoke.yaml", "--serial", "--no-progress", "--run-dir", str(run),
+                 "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4",
+                 "--set", "training.num_epochs_per_round=1"]) == 0
+    captions = []
+    import gpl_dist.rendering as rendering
+    draw = rendering._captioned
+
+    def recording(frame, top, bottom, **kw):
+        captions.append((top, bottom))
+        return draw(frame, top, bottom, **kw)
+
+    monkeypatch.setattr(rendering, "_captioned", recording)
+    assert main(["render", "--run-dir", str(run), "--task", "263", "--attempts", "3", "--out", str(tmp_path / "p.gif")]) == 0
+    gif = Image.open(tmp_path / "p.gif")
+    assert gif.n_frames > 3 and gif.size[0] == 400
+    tops = list(dict.fromkeys(top for top, _ in captions))  # one caption line per attempt, in order
+    assert tops[0].startswith("attempt 1/") and ": instruction: move" in tops[0].lower()
+    assert all(": correction: " in t for t in tops[1:]) and len(tops) <= 3
+    assert any(b.startswith("completion ") for _, b in captions)
+    capsys.readouterr()
+    for args, needle in ((["--task", "99999"], "outside"), (["--task", "1", "--attempts", "0"], "at least 1"),
+                         (["--task", "1", "--env", "multiroom"], "leave out --env")):
+        assert main(["render", "--run-dir", str(run), *args, "--out", str(tmp_path / "x.gif")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and "\n" not in err, err
+
+
 def test_train_rejects_bad_config_in_one_line(tmp_path, capsys):
     cfg = tmp_path / "bad.yaml"
     cfg.write_text("collection:\n  num_correction: 3\n")
