@@ -41,6 +41,7 @@ from typing import Any, Mapping
 import yaml
 
 from gpl_dist.config import ConfigError, RunConfig, config_to_dict, load_config
+from gpl_dist.errors import RunDirError
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
 RECORD_VERSION = 1
@@ -226,9 +227,17 @@ def code_commit() -> str:
 
 
 def read_record(run_dir: Path) -> dict | None:
-    """A run's ``suite-run.json``, or None."""
+    """A run's ``suite-run.json``, or None; a damaged one fails in one line naming it."""
     p = run_dir / "suite-run.json"
-    return json.loads(p.read_text()) if p.is_file() else None
+    if not p.is_file():
+        return None
+    try:
+        record = json.loads(p.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RunDirError(f"{p} is damaged ({err}): delete it to let the suite rebuild it from the run's files") from None
+    if not isinstance(record, dict):
+        raise RunDirError(f"{p} does not hold a JSON object: delete it to let the suite rebuild it")
+    return record
 
 
 def _write_record(run_dir: Path, record: dict) -> None:
@@ -278,10 +287,10 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
             log=print, commit: str | None = None) -> dict:
     """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written.
     ``commit`` names the code in the records (default: this process's ``code_commit()``)."""
-    commit = commit or code_commit()
     from learner.driver import run_training
     from learner.evaluate import evaluate_run
 
+    commit = commit or code_commit()
     state = run_state(run, suite)
     record = read_record(run.run_dir) or {"version": RECORD_VERSION, "suite": str(suite.path), "entry": run.entry.name,
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
