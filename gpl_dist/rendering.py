@@ -87,27 +87,16 @@ def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, 
     the attempt, the correction that led to it (the instruction for the first), and the attempt's
     completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt).
     """
-    from gpl_dist.config import config_from_dict
-    from gpl_dist.corrections import make_corrector
-    from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, build_model_from_config
-    from learner.checkpoint import LATEST, load_checkpoint, load_model_state
-    from workers.loop import Rollout
+    from learner.evaluate import load_trained_policy, meta_test_rollout
 
     if num_attempts < 1:
         raise UsageError(f"--attempts must be at least 1, got {num_attempts}")
-    ckpt_file = Path(checkpoint) if checkpoint else Path(run_dir) / "checkpoints" / LATEST
-    ckpt = load_checkpoint(ckpt_file)
-    cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
+    cfg, model, _ = load_trained_policy(run_dir, checkpoint)
     domain = get_domain(cfg.env.domain)
     if not 0 <= task_id < domain.num_tasks:
         raise UsageError(f"task {task_id} is outside 0..{domain.num_tasks - 1} of {domain.name}")
-    model = build_model_from_config(domain, cfg.model)
-    load_model_state(model, ckpt, ckpt_file)
     model.eval()
-    rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind),
-                      end_aligned=cfg.model.trajectory_ends_at_last_state,
-                      full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
-    result = rollout.run([task_id], num_attempts - 1, seed, split="render")
+    result = meta_test_rollout(cfg, model).run([task_id], num_attempts - 1, seed, split="render")
     if result.failures:
         raise UsageError(str(result.failures[0]))
     stride = frame_stride or max(1, domain.steps_per_attempt // 40)

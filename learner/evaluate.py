@@ -101,6 +101,26 @@ class EvalResult:
     effort: CorrectionEffort
 
 
+def load_trained_policy(run_dir: str | Path, checkpoint: str | None = None) -> tuple[RunConfig, PolicyNetwork, int]:
+    """A run's config, its policy with a checkpoint's weights (the latest unless ``checkpoint``
+    names one), and the round that checkpoint ends."""
+    ckpt_file = Path(checkpoint) if checkpoint else Path(run_dir) / "checkpoints" / LATEST
+    ckpt = load_checkpoint(ckpt_file)
+    cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
+    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model)
+    load_model_state(model, ckpt, ckpt_file)
+    return cfg, model, ckpt.round_index
+
+
+def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False) -> Rollout:
+    """The rollout loop as Algorithm 2 runs it: the run's oracle corrects, and the policy is
+    conditioned as the run's ``model`` section says."""
+    domain = get_domain(cfg.env.domain)
+    return Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
+                   end_aligned=cfg.model.trajectory_ends_at_last_state,
+                   full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
+
+
 def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
                     max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
                     tasks: tuple[int, ...] | None = None) -> EvalResult:
@@ -115,9 +135,7 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
         tasks = tasks[:max_tasks]
     if any(p.device.type != "cpu" for p in model.parameters()):
         model = copy.deepcopy(model).cpu()  # rollouts run on the CPU, beside the envs
-    rollout = Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
-                      end_aligned=cfg.model.trajectory_ends_at_last_state,
-                      full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
+    rollout = meta_test_rollout(cfg, model, greedy)
     was_training = model.training
     model.eval()
     start = time.perf_counter()
@@ -228,11 +246,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
         raise UsageError("seeds must name at least one seed")
     if run_dir.is_dir() and not os.access(run_dir, os.W_OK):
         raise UsageError(f"cannot write the report into {run_dir} (no write permission)")
-    ckpt_file = Path(checkpoint) if checkpoint else run_dir / "checkpoints" / LATEST
-    ckpt = load_checkpoint(ckpt_file)
-    cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
-    model = build_model_from_config(get_domain(cfg.env.domain), cfg.model)
-    load_model_state(model, ckpt, ckpt_file)
+    cfg, model, round_index = load_trained_policy(run_dir, checkpoint)
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
@@ -243,7 +257,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
                        checkpoint=checkpoint)
     payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
-               "round": ckpt.round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
+               "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
                "seeds": list(seeds), "max_tasks": max_tasks,
                "greedy_actions": greedy, "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
@@ -254,6 +268,6 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     path = run_dir / f"{stem}.json"
     path.write_text(json.dumps(payload, indent=1) + "\n")
     plot(cfg.env.domain, result, path.with_suffix(".png"),
-         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {ckpt.round_index}",
+         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}",
          with_paper=payload["reduced_scale"] is None)
     return result, path
