@@ -170,6 +170,35 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _teacher(args: argparse.Namespace):
+    from gpl_dist.teaching import Teacher
+
+    return Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy)
+
+
+def cmd_teach(args: argparse.Namespace) -> int:
+    """``gpl-dist teach``: correct a trained policy by typing, attempt after attempt."""
+    from gpl_dist.teach_terminal import teach_in_terminal
+
+    if args.task is not None and args.instruction is not None:
+        raise UsageError("give --task or --instruction, not both")
+    teacher = _teacher(args)
+    task_id = teacher.resolve_task(args.task, args.instruction, args.seed, args.split)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
+    teach_in_terminal(teacher.episode(task_id, args.seed, "terminal"), out, always_hint=args.hint)
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    """``gpl-dist serve``: the teaching loop in a web page."""
+    from gpl_dist.teach_web import serve
+
+    teacher = _teacher(args)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
+    serve(teacher, out, host=args.host, port=args.port, split=args.split)
+    return 0
+
+
 def _print_problems(report) -> None:
     for p in report.problems:
         print(f"BAD  {p.path}: {p.message}")
@@ -311,6 +340,25 @@ def build_parser() -> argparse.ArgumentParser:
     drawn.add_argument("--expert", action="store_true", help="draw the expert's attempt")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_render)
+
+    for name, func, text in (("teach", cmd_teach, "correct a trained policy yourself, in the terminal"),
+                             ("serve", cmd_serve, "correct a trained policy yourself, in a web page")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt)")
+        p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+        p.add_argument("--split", default="test", help="split of the tasks drawn or matched (default test: held out)")
+        p.add_argument("--max-corrections", type=int, default=10, help="corrections an episode may take")
+        p.add_argument("--out", help="folder of the teaching log (OUT/log/*.parquet) and GIFs (default RUN_DIR/teaching)")
+        p.add_argument("--greedy", action="store_true", help="take the most likely action (default: sample, as eval)")
+        if name == "teach":
+            p.add_argument("--task", type=int, help="task id (default: one of --split drawn with --seed)")
+            p.add_argument("--instruction", help="a task of --split with this instruction")
+            p.add_argument("--seed", type=int, default=0, help="seed of the task draw and of the policy's actions")
+            p.add_argument("--hint", action="store_true", help="show what the run's oracle would say after each attempt")
+        else:
+            p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback only)")
+            p.add_argument("--port", type=int, default=8000)
+        p.set_defaults(func=func)
 
     p = sub.add_parser("inspect", help="summarise a run's committed buffer (after verifying it)")
     p.add_argument("run_dir")

@@ -64,8 +64,7 @@ def write_picture(frames: list[np.ndarray], out: str | Path, fps: int = 8) -> Pa
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".gif":
-        images = [Image.fromarray(f) for f in frames]
-        images[0].save(out, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+        out.write_bytes(gif_bytes(frames, fps))
     else:
         Image.fromarray(frames[-1] if len(frames) > 1 else frames[0]).save(out)
     return out
@@ -99,17 +98,35 @@ def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, 
     result = meta_test_rollout(cfg, model).run([task_id], num_attempts - 1, seed, split="render")
     if result.failures:
         raise UsageError(str(result.failures[0]))
-    stride = frame_stride or max(1, domain.steps_per_attempt // 40)
     frames: list[np.ndarray] = []
     for k, att in enumerate(result.attempts):
         said = att.instruction if k == 0 else result.attempts[k - 1].correction
         top = f"attempt {k + 1}/{len(result.attempts)}: {'instruction' if k == 0 else 'correction'}: {said}"
         bottom = f"completion {att.completion:.2f}" + (" - solved" if att.success else "")
-        drawn = attempt_frames(domain.name, task_id, att.actions.tolist(), seed=att.seed)
-        for t in [*range(0, len(drawn) - 1, stride), len(drawn) - 1]:
-            frames.append(_captioned(drawn[t], top, bottom if t == len(drawn) - 1 else f"step {t}"))
-        frames += [frames[-1]] * 6  # hold the attempt's end for a moment
+        frames += captioned_attempt_frames(domain.name, task_id, att.actions, att.seed, top, bottom, frame_stride)
     return frames
+
+
+def captioned_attempt_frames(domain_name: str, task_id: int, actions: np.ndarray, reset_seed: int, top: str,
+                             bottom: str, frame_stride: int | None = None) -> list[np.ndarray]:
+    """An attempt replayed from ``reset_seed`` and ``actions``, every ``frame_stride``-th step
+    (default: about 40 frames), each frame captioned ``top`` over ``step t`` (``bottom`` on the
+    last, which is held for a moment)."""
+    stride = frame_stride or max(1, get_domain(domain_name).steps_per_attempt // 40)
+    drawn = attempt_frames(domain_name, task_id, np.asarray(actions).tolist(), seed=reset_seed)
+    last = len(drawn) - 1
+    frames = [_captioned(drawn[t], top, bottom if t == last else f"step {t}") for t in [*range(0, last, stride), last]]
+    return frames + [frames[-1]] * 6
+
+
+def gif_bytes(frames: list[np.ndarray], fps: int = 8) -> bytes:
+    """``frames`` as the bytes of an animated GIF (what ``write_picture`` writes to a .gif)."""
+    import io
+
+    images = [Image.fromarray(f) for f in frames]
+    out = io.BytesIO()
+    images[0].save(out, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return out.getvalue()
 
 
 def _captioned(frame: np.ndarray, top: str, bottom: str, width_px: int = 400) -> np.ndarray:

@@ -67,6 +67,9 @@ class DomainSpec:
             goal block and the target's coordinates), ``f(task_id)`` -> float32 ``(F,)``; the
             ``full_information`` variant then reads them through an MLP in place of the
             full-information text. None: the full information is the oracle's text.
+        correction_phrasings: ``f()`` -> every sentence the oracle's text kinds can say; a person's
+            correction is checked against them (``gpl_dist.teaching``: the closest known phrasing).
+            None: the vocabulary alone is known.
     """
 
     name: str
@@ -88,6 +91,7 @@ class DomainSpec:
     obs_categories: tuple[int, ...] | None = None
     splits: Mapping[str, tuple[int, ...]] | None = None
     full_information_values: Callable[[int], np.ndarray] | None = None
+    correction_phrasings: Callable[[], tuple[str, ...]] | None = None
 
     @property
     def trajectory_samples(self) -> int:

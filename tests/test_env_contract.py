@@ -87,3 +87,40 @@ def test_episode_is_truncated_at_the_paper_length(env_id):
 def test_bad_task_id_fails_clearly(env_id, bad):
     with pytest.raises(ValueError, match="task_id"):
         gymnasium.make(env_id, task_id=bad)
+
+
+def _random_attempt_env(spec, task_id, seed, render_mode=None):
+    env = spec.make_env(task_id, render_mode=render_mode)
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    for _ in range(spec.steps_per_attempt):
+        env.step(int(rng.integers(spec.num_actions)))
+    return env
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_text_picture_shows_the_path_and_is_deterministic(env_id):
+    spec = SPECS[env_id]
+    a = _random_attempt_env(spec, 3, 5, render_mode="ansi").render()
+    b = _random_attempt_env(spec, 3, 5, render_mode="ansi").render()
+    fresh = spec.make_env(3, render_mode="ansi")
+    fresh.reset(seed=5)
+    assert isinstance(a, str) and a == b
+    assert f"{spec.steps_per_attempt} steps" in a and "0 steps" in fresh.render()
+    assert a != fresh.render()  # the path and the final state are drawn
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_every_oracle_correction_is_a_listed_phrasing(env_id):
+    """``correction_phrasings`` is what a person's correction is compared with: it must hold every
+    sentence the text oracles say."""
+    spec = SPECS[env_id]
+    known = {" ".join(s.lower().split()) for s in spec.correction_phrasings()}
+    text_kinds = [k for k in spec.correction_kinds if k not in ("reward",)]
+    said = set()
+    for task_id in range(0, spec.num_tasks, spec.num_tasks // 12):
+        env = _random_attempt_env(spec, task_id, task_id)
+        for kind in text_kinds:
+            said.add(spec.make_corrector(kind).correct(env, np.random.default_rng(task_id)).text)
+    assert said and {" ".join(s.lower().split()) for s in said} <= known
+    assert all(w in spec.vocabulary.words for s in known for w in s.split())

@@ -157,6 +157,23 @@ class MultiRoomCorrector:
         return full_information(env)
 
 
+_COMPASS = ("north", "northeast", "east", "southeast", "south", "southwest", "west", "northwest", "here")
+_THINGS = ("the object room", "the object", "the exit", "the goal room", "the goal")
+
+
+def phrasings() -> tuple[str, ...]:
+    """Every correction a multi-room oracle of a text kind (subgoal, directional, binary) can say:
+    the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
+    from gpl_dist.envs.multiroom_core import COLOURS, SHAPES
+
+    subgoal = ([f"enter the {c} room" for c in COLOURS] + [f"exit the {c} room" for c in COLOURS]
+               + [f"pick up the {c} {s}" for c in COLOURS for s in SHAPES] + [f"go to the {c} goal" for c in COLOURS])
+    directional = [f"{thing} is {d}" for thing in _THINGS for d in _COMPASS]
+    binary = ["you are in the right room", "you are in the wrong room", "you have the wrong object",
+              "you have the right object", "you do not have the object"]
+    return (*subgoal, *directional, *binary, DONE_TEXT)
+
+
 def make_multiroom_corrector(kind: str = "default") -> MultiRoomCorrector:
     """The oracle of ``kind`` in default/subgoal, directional, binary, all, reward."""
     return MultiRoomCorrector(kind)

@@ -35,6 +35,7 @@ import numpy as np
 from gpl_dist.envs.relocation import (
     CORRECTION_KINDS,
     DIGIT_WORDS,
+    DIRECTION_PHRASES,
     FIXED_COLORS,
     FIXED_XY,
     MOVABLE_COLORS,
@@ -142,6 +143,15 @@ class RelocationCorrector:
 
     def full_information(self, env: Any) -> str:
         return full_information_text(env)
+
+
+def phrasings() -> tuple[str, ...]:
+    """Every correction the relocation oracle of a text kind can say (touch, directional,
+    relational): the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
+    return (*(f"Touch the {c} block" for c in MOVABLE_COLORS),
+            *(f"Move {amount} {d}" for amount in ("a little", "a lot") for d in DIRECTION_PHRASES),
+            *(f"Move {d} of the {c} block" for c in FIXED_COLORS for d in DIRECTION_PHRASES),
+            *(f"Move closer to the {c} block" for c in FIXED_COLORS))
 
 
 def make_relocation_corrector(kind: str = "default") -> RelocationCorrector:

@@ -173,9 +173,11 @@ class MultiRoomEnv(gym.Env):
 
     ## Rendering
     ``render_mode="rgb_array"``: the full grid, 32 px tiles (608x608x3 uint8).
+    ``render_mode="ansi"``: the grid as text, two characters a cell, with the cells visited since
+    reset and a legend (``multiroom_render.render_text``).
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 10}
     domain_name = "multiroom"
 
     def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
@@ -200,6 +202,8 @@ class MultiRoomEnv(gym.Env):
     def _reset_state(self) -> None:
         self._enc = self._enc0.copy()
         self._pos = START_CELL
+        # the cells visited since reset, kept only for the text picture (render_mode "ansi")
+        self._trail: list[int] | None = [START_CELL] if self.render_mode == "ansi" else None
         self._door_mask = 0
         self._obj_cell = [o.cell for o in self.task.objects]  # -1 while carried
         self._obj_at = {c: i for i, c in enumerate(self._obj_cell)}
@@ -280,6 +284,8 @@ class MultiRoomEnv(gym.Env):
         else:
             raise ValueError(f"invalid action {action!r} (expected 0..5)")
         self._steps += 1
+        if self._trail is not None:
+            self._trail.append(self._pos)
 
         left = self._subgoals_left_now()
         self._left = left
@@ -317,6 +323,10 @@ class MultiRoomEnv(gym.Env):
         }
 
     def render(self):
+        if self.render_mode == "ansi":
+            from gpl_dist.envs.multiroom_render import render_text
+
+            return render_text(self, self._trail or [self._pos])
         if self.render_mode != "rgb_array":
             return None
         from gpl_dist.envs.multiroom_render import render_grid
@@ -442,6 +452,7 @@ DOMAIN = DomainSpec(
     experts={"scripted": lazy("gpl_dist.experts.multiroom:MultiRoomExpert")},
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.multiroom:make_multiroom_corrector"),
+    correction_phrasings=lazy("gpl_dist.corrections.multiroom:phrasings"),
     model_sizes=Sizes(
         state_channels=(8, 8), state_mlp=(32, 32),
         traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),

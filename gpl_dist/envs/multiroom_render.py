@@ -108,3 +108,42 @@ def render_grid(cells: dict[tuple[int, int], tuple], agent_xy: tuple[int, int], 
         t = tile(kind, colour, shape, door_open, is_agent, carried[0] if is_agent else 0, carried[1] if is_agent else 0)
         img[y * TILE:(y + 1) * TILE, x * TILE:(x + 1) * TILE] = t
     return img
+
+
+#: One letter per colour code 1..6 in the text picture (grey is "e": "g" is green).
+COLOUR_LETTERS = "bgepry"
+#: One letter per object type code (4 ball, 5 triangle, 6 square).
+SHAPE_LETTERS = {T_BALL: "o", T_TRIANGLE: "t", T_SQUARE: "s"}
+TEXT_LEGEND = ("colours: b blue, g green, e grey, p purple, r red, y yellow | ot s: ball, triangle, square "
+               "object | G goal | D closed door, d open | @ agent | . path").replace("ot s", "o t s")
+
+
+def render_text(env, trail: list[int]) -> str:
+    """The grid as text, two characters a cell (a kind letter and a colour letter, ``TEXT_LEGEND``):
+    walls ``##``, doors ``Db`` (closed) / ``db`` (open), objects ``tg`` (a green triangle), goals
+    ``Gr``, the agent ``@`` followed by its carried object's colour letter or a space, the cells of
+    ``trail`` (flat indices) that hold nothing else ``. ``; then the legend and what is carried."""
+    from gpl_dist.envs.multiroom_core import COLOURS as NAMES
+    from gpl_dist.envs.multiroom_core import DOOR_CELL, XY
+
+    rows = [["##" if KIND[y, x] == K_WALL else "  " for x in range(SIZE)] for y in range(SIZE)]
+    for c in trail:
+        x, y = XY[c]
+        rows[y][x] = ". "
+    for i, c in enumerate(DOOR_CELL):
+        x, y = XY[c]
+        rows[y][x] = ("d" if env.door_open[i] else "D") + COLOUR_LETTERS[i]
+    for g in env.task.goals:
+        rows[g.xy[1]][g.xy[0]] = "G" + COLOUR_LETTERS[NAMES.index(g.colour)]
+    for i, xy in enumerate(env.object_positions):
+        if xy is not None:
+            shape, colour = env._obj_codes[i]
+            rows[xy[1]][xy[0]] = SHAPE_LETTERS[shape] + COLOUR_LETTERS[colour - 1]
+    ax, ay = env.agent_pos
+    carried = env._obj_codes[env.carrying] if env.carrying >= 0 else None
+    rows[ay][ax] = "@" + (COLOUR_LETTERS[carried[1] - 1] if carried else " ")
+    held = "nothing"
+    if carried:
+        obj = env.task.objects[env.carrying]
+        held = f"the {obj.colour} {obj.shape}"
+    return "\n".join("".join(r) for r in rows) + f"\n{TEXT_LEGEND}\ncarrying {held}; {len(trail) - 1} steps"

@@ -295,12 +295,16 @@ class RelocationEnv(gymnasium.Env):
     Initial block-to-target distances span 0.32-1.40. ``make_splits(0)`` gives the committed ``train`` (750)
     and ``test`` (250) split, ``gpl_dist/splits/relocation.json``.
 
+    **Rendering.** ``render_mode="rgb_array"``: a top-down picture (400x400x3 uint8);
+    ``"ansi"``: the same view as text, with the paths of the gripper and the goal block since reset
+    (``relocation_render.render_text``).
+
     **State access** (expert, corrections, tests): ``data`` (MjData; ``qpos`` layout as the
     observation's indices 0-8), ``block_xy(i)``, ``initial_blocks`` (3, 2) at reset,
     ``set_state(qpos, qvel)``.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 100}
+    metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 100}
     domain_name = "relocation"
 
     def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
@@ -342,6 +346,13 @@ class RelocationEnv(gymnasium.Env):
         self.initial_distance = self.task.initial_distance
         self.steps = 0
         self.reached = self.distance() < SUCCESS_RADIUS
+        # (gripper x, y, goal block x, y) since reset, kept only for the text picture (render_mode "ansi")
+        self._trail: list[tuple[float, float, float, float]] | None = (
+            [self._trail_point()] if self.render_mode == "ansi" else None)
+
+    def _trail_point(self) -> tuple[float, float, float, float]:
+        q = self.data.qpos
+        return float(q[0]), float(q[1]), float(q[self._bq]), float(q[self._bq + 1])
 
     def _observe(self) -> np.ndarray:
         obs = self._obs
@@ -426,12 +437,18 @@ class RelocationEnv(gymnasium.Env):
                 self.reached = True
                 if not self._dense:
                     reward = 1.0
+        if self._trail is not None:
+            self._trail.append(self._trail_point())
         obs = self._obs
         obs[0:9] = q
         obs[19:28] = d.qvel
         return obs.copy(), reward, False, self.steps >= EPISODE_STEPS, self._info(dist)
 
     def render(self):
+        if self.render_mode == "ansi":
+            from gpl_dist.envs.relocation_render import render_text
+
+            return render_text(self, self._trail or [self._trail_point()])
         if self.render_mode != "rgb_array":
             return None
         from gpl_dist.envs.relocation_render import render_topdown
@@ -494,6 +511,7 @@ DOMAIN = DomainSpec(
              "learned": lazy("gpl_dist.experts.relocation_learned:LearnedRelocationExpert")},
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.relocation:make_relocation_corrector"),
+    correction_phrasings=lazy("gpl_dist.corrections.relocation:phrasings"),
     model_sizes=Sizes(
         state_channels=(), state_mlp=(),
         traj_state_channels=(), traj_state_mlp=(), traj_conv=8, traj_mlp=(16, 8),

@@ -63,3 +63,41 @@ def render_topdown(env: Any) -> np.ndarray:
     draw.line([world(0.1, -0.1), world(0.0, -0.1), world(0.0, 0.1), world(0.1, 0.1)], fill=GRIPPER_RGB,
               width=w, joint="curve")
     return np.asarray(img, dtype=np.uint8)
+
+
+#: Characters of the text picture: columns and rows over the same window as the RGB picture
+#: (a terminal cell is about twice as tall as wide, so a column covers half a row's height).
+TEXT_COLS, TEXT_ROWS = 48, 24
+TEXT_LEGEND = ("fixed blocks P purple, E grey, W white, B blue, G green | movable r red, c cyan, y yellow "
+               "(the goal block upper-case) | X target | @ gripper, : its path | * the goal block's path")
+
+
+def render_text(env: Any, trail: list[tuple[float, float, float, float]]) -> str:
+    """The arena seen from above as text (``TEXT_LEGEND``), with the paths of ``trail``
+    (gripper x, y, goal block x, y after each step), then the goal block's start, end and target."""
+    grid = [[" "] * TEXT_COLS for _ in range(TEXT_ROWS)]
+
+    def put(x: float, y: float, ch: str) -> None:
+        col = int((x - CENTER[0] + HALF) / (2 * HALF) * TEXT_COLS)
+        row = int((CENTER[1] + HALF - y) / (2 * HALF) * TEXT_ROWS)
+        if 0 <= col < TEXT_COLS and 0 <= row < TEXT_ROWS:
+            grid[row][col] = ch
+
+    for gx, gy, _, _ in trail:
+        put(gx, gy, ":")
+    for _, _, bx, by in trail:
+        put(bx, by, "*")
+    q = env.data.qpos
+    put(float(q[0]), float(q[1]), "@")  # under the blocks and the target: they matter more
+    for (fx, fy), ch in zip(FIXED_XY, "PEWBG"):
+        put(fx, fy, ch)
+    tx, ty = env.task.target
+    put(tx, ty, "X")
+    for i, ch in enumerate("rcy"):
+        bx, by = env.block_xy(i)
+        put(bx, by, ch.upper() if i == env.task.block else ch)
+    border = "+" + "-" * TEXT_COLS + "+"
+    (sx, sy), (ex, ey) = trail[0][2:], trail[-1][2:]
+    where = (f"goal block ({env.task.block_color}) from ({sx:.2f}, {sy:.2f}) to ({ex:.2f}, {ey:.2f}); "
+             f"target ({tx:.2f}, {ty:.2f}), {env.distance():.2f} away; {len(trail) - 1} steps")
+    return "\n".join([border, *("|" + "".join(r) + "|" for r in grid), border, TEXT_LEGEND, where])

@@ -1,0 +1,89 @@
+"""``gpl-dist teach``: teach a trained policy by typing corrections in the terminal.
+
+Each attempt is printed as text (the path and the final state), with its completion and the path
+of a GIF of it; then the person types the next correction. Lines starting with ``:`` are commands:
+``:hint`` (what the run's oracle would say), ``:quit``. A correction with words the policy does
+not know is shown with the closest known phrasing before it is sent: press Enter to send it as
+typed, or type another. Every attempt is logged (``gpl_dist.teaching``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, TextIO
+
+from gpl_dist.teaching import TaughtAttempt, TeachingEpisode, write_episode_log
+
+HELP = "type a correction, ':hint' for the oracle's, ':quit' to stop"
+
+
+def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: bool = False,
+                      read_line: Callable[[str], str] = input, out: TextIO | None = None) -> Path:
+    """Run ``episode`` until solved, out of corrections, ``:quit`` or end of input; writes the log
+    under ``out_dir/log`` and GIFs under ``out_dir/gifs``; returns the log file's path."""
+    import sys
+
+    stream = out or sys.stdout
+
+    def say(text: str = "") -> None:
+        print(text, file=stream, flush=True)
+
+    log_dir, gif_dir = out_dir / "log", out_dir / "gifs"
+    gif_dir.mkdir(parents=True, exist_ok=True)
+    say(f"task {episode.task_id} of {episode.teacher.domain.name}, seed {episode.seed}: '{episode.instruction}'")
+    log_path = ""
+    correction: str | None = None
+    while True:
+        attempt = episode.attempt(correction)
+        log_path = write_episode_log(episode, log_dir)
+        gif = gif_dir / f"{episode.episode_id}-attempt{attempt.index}.gif"
+        gif.write_bytes(episode.gif(attempt.index))
+        _show(say, attempt, gif)
+        if attempt.success or episode.corrections_left <= 0:
+            say("solved." if attempt.success else f"no corrections left ({episode.teacher.max_corrections} given).")
+            break
+        if always_hint:
+            say(f"hint: the oracle would say '{episode.hint()}'")
+        correction = _read_correction(episode, read_line, say)
+        if correction is None:
+            break
+    say(f"log: {log_path} (pyarrow.dataset.dataset('{log_dir}') reads every episode)")
+    return Path(log_path)
+
+
+def _show(say: Callable[[str], None], attempt: TaughtAttempt, gif: Path) -> None:
+    led_by = "instruction" if attempt.index == 0 else "correction"
+    say(f"\nattempt {attempt.index + 1} ({led_by}: '{attempt.said_before}'):")
+    say(attempt.picture)
+    say(f"completion {attempt.completion:.2f}, {'solved' if attempt.success else 'not solved'}; GIF: {gif}")
+
+
+def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
+                     say: Callable[[str], None]) -> str | None:
+    """The next usable correction, or None to stop (``:quit``, end of input)."""
+    pending: str | None = None  # a correction with unknown words, sent on an empty line
+    say(HELP)
+    while True:
+        try:
+            line = read_line("correction> " if pending is None else "Enter to send as typed, or a new correction> ")
+        except EOFError:
+            return None
+        text = line.strip()
+        if text == "" and pending is not None:
+            return pending
+        if text in (":quit", ":q"):
+            return None
+        if text == ":hint":
+            say(f"hint: the oracle would say '{episode.hint()}'")
+            continue
+        check = episode.check(line)
+        if check.problem:
+            say(f"not sent: {check.problem}")
+            pending = None
+            continue
+        if check.unknown_words:
+            say(f"unknown words: {', '.join(w[:40] for w in check.unknown_words[:8])} (the policy reads them as <unk>); "
+                f"closest known phrasing: '{check.suggestion}'")
+            pending = check.text
+            continue
+        return check.text

@@ -1,0 +1,286 @@
+"""Teaching a trained policy: the checker, the episode (seeded replay, as meta-test), the log, the
+terminal loop, the web API, and a real browser through a full episode."""
+
+import io
+import shutil
+import socket
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pyarrow.dataset as pads
+import pytest
+from _cluster_tools import GPL_DIST, free_ports, quiet_env
+
+from gpl_dist.cli import main
+from gpl_dist.domains import get_domain
+from gpl_dist.language import split_words
+from gpl_dist.teaching import (
+    MAX_TEXT_CHARS,
+    Teacher,
+    TeachingError,
+    check_correction,
+    write_episode_log,
+)
+from learner.evaluate import load_trained_policy, meta_test_rollout
+
+TASK = 263  # a multi-room test task
+
+
+def _train(run: Path, *sets: str) -> Path:
+    args = ["train", "--config", "configs/multiroom-smoke.yaml", "--serial", "--no-progress", "--run-dir", str(run),
+            "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4", "--set", "training.num_epochs_per_round=1"]
+    for s in sets:
+        args += ["--set", s]
+    assert main(args) == 0
+    return run
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    return _train(tmp_path_factory.mktemp("teach") / "run")
+
+
+@pytest.fixture(scope="module")
+def teacher(run) -> Teacher:
+    return Teacher(run)
+
+
+MULTIROOM = get_domain("multiroom")
+
+
+@pytest.mark.parametrize("text, needle", [
+    ("", "empty"),
+    ("   \t ", "empty"),
+    ("x" * 10_000, f"at most {MAX_TEXT_CHARS}"),
+    ("enter the\x07 blue room", "control characters"),
+    ("enter the\u200b blue room", "control characters"),
+    ("Geh in den blauen Raum", "knows too few of the words"),
+    ("进入蓝色房间", "no English words"),
+])
+def test_unusable_corrections_are_refused_with_a_reason(text, needle):
+    check = check_correction(MULTIROOM, text)
+    assert not check.usable and needle in check.problem
+    assert len(check.text) <= MAX_TEXT_CHARS + 1
+
+
+def test_unknown_words_are_pointed_out_with_the_closest_known_phrasing():
+    check = check_correction(MULTIROOM, "Enter the GRY room!")
+    assert check.usable and check.unknown_words == ("gry",)
+    assert check.suggestion == "enter the grey room"
+    vocab = MULTIROOM.vocabulary
+    assert check.token_ids == tuple(int(i) for i in vocab.encode("enter the <unk> room") if i)
+    known = check_correction(MULTIROOM, "enter the grey room")
+    assert known.usable and known.unknown_words == () and known.suggestion is None
+    assert check_correction(get_domain("relocation"), "move a litle left").suggestion == "Move a little left"
+
+
+def test_a_person_typing_the_oracles_corrections_gets_meta_tests_attempts(teacher, run):
+    """The teaching loop is Algorithm 2 with a person in the oracle's place: typing what the oracle
+    says reproduces the meta-test rollout's attempts action for action."""
+    cfg, model, _ = load_trained_policy(run)
+    model.eval()
+    expected = meta_test_rollout(cfg, model).run([TASK], 2, 7, split="teach").attempts
+    episode = teacher.episode(TASK, seed=7)
+    got = [episode.attempt()]
+    for k in range(1, len(expected)):
+        got.append(episode.attempt(expected[k - 1].correction))
+    assert len(expected) >= 2
+    for a, b in zip(got, expected):
+        assert np.array_equal(a.actions, b.actions) and a.completion == b.completion
+    assert got[1].said_before == expected[0].correction
+
+
+def test_episodes_replay_exactly_and_bad_input_changes_nothing(teacher):
+    one, two = teacher.episode(TASK, seed=3), teacher.episode(TASK, seed=3)
+    with pytest.raises(TeachingError, match="first attempt"):
+        one.attempt("enter the blue room")  # a correction before any attempt
+    first = one.attempt()
+    assert np.array_equal(two.attempt().actions, first.actions)
+    for bad in ("", "x" * 10_000, "a\x00b", "Geh nach Norden", None):
+        with pytest.raises(TeachingError):
+            one.attempt(bad)
+        assert len(one.attempts) == 1  # refused input leaves the episode as it was
+    with pytest.raises(TeachingError, match="no attempt"):
+        teacher.episode(TASK, seed=3).hint()
+    a = one.attempt("enter the blu room")  # an unknown word is sent as <unk>
+    b = two.attempt("enter the blu room")
+    assert a.check.unknown_words == ("blu",) and np.array_equal(a.actions, b.actions)
+    assert len(two.attempts) == 2 and one.episode_id != two.episode_id
+
+
+def test_the_hint_is_what_the_runs_oracle_says_after_the_attempt(teacher, run):
+    cfg, model, _ = load_trained_policy(run)
+    model.eval()
+    expected = meta_test_rollout(cfg, model).run([TASK], 1, 11, split="teach").attempts
+    episode = teacher.episode(TASK, seed=11)
+    episode.attempt()
+    if expected[0].success:
+        pytest.fail("task solved on the first attempt: pick another task for this test")
+    assert episode.hint() == expected[0].correction
+
+
+def test_tasks_are_chosen_by_id_instruction_or_draw(teacher):
+    env = MULTIROOM.make_env(TASK)
+    shouted = "  " + env.instruction.upper() + "!! "
+    chosen = teacher.resolve_task(instruction=shouted, seed=0)
+    assert split_words(MULTIROOM.make_env(chosen).instruction) == split_words(env.instruction)
+    assert teacher.resolve_task(seed=5) == teacher.resolve_task(seed=5)
+    for bad in (-1, MULTIROOM.num_tasks, 10**30, True):
+        with pytest.raises(TeachingError, match="outside"):
+            teacher.resolve_task(task_id=bad)
+    with pytest.raises(TeachingError, match="closest is 'move blue triangle to red square'"):
+        teacher.resolve_task(instruction="move blue triangle to red squar")
+    with pytest.raises(TeachingError, match="no English words"):
+        teacher.resolve_task(instruction="把蓝色三角形移到红色方块")
+
+
+def test_the_log_is_one_parquet_row_per_attempt(teacher, tmp_path):
+    episode = teacher.episode(TASK, seed=3, source="test")
+    episode.attempt()
+    write_episode_log(episode, tmp_path / "log")
+    episode.hint()
+    episode.attempt("enter the gry room")
+    write_episode_log(episode, tmp_path / "log")  # replaces the episode's file
+    other = teacher.episode(TASK + 1, seed=0)
+    other.attempt()
+    write_episode_log(other, tmp_path / "log")
+    rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
+    assert len(rows) == 3 and len(list((tmp_path / "log").iterdir())) == 2
+    mine = sorted((r for r in rows if r["episode"] == episode.episode_id), key=lambda r: r["attempt"])
+    assert [r["attempt"] for r in mine] == [0, 1]
+    assert mine[1]["correction"] == "enter the gry room" and mine[1]["unknown_words"] == ["gry"]
+    assert mine[1]["hint_shown"] and not mine[0]["hint_shown"] and mine[0]["correction"] == ""
+    assert mine[1]["correction_tokens"] == list(episode.attempts[1].check.token_ids)
+    assert mine[0]["task_id"] == TASK and mine[0]["seed"] == 3 and mine[0]["source"] == "test"
+    assert mine[1]["completion"] == episode.attempts[1].completion and mine[1]["started_at"] is not None
+
+
+def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
+    run = _train(tmp_path / "instr", "model.variant=instruction_only")
+    with pytest.raises(TeachingError, match="does not read corrections"):
+        Teacher(run)
+
+
+def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
+    typed = ["", "x" * 10_000, "enter\x1b[31m the room", "Geh nach Norden", ":hint", "enter the gry room", "",
+             "enter the blue room", ":quit"]
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(typed) + "\n"))
+    assert main(["teach", "--run-dir", str(run), "--task", str(TASK), "--seed", "3", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for needle in ("'Move blue triangle to red square'", "attempt 1 (instruction", "empty", "at most 200",
+                   "control characters", "knows too few of the words", "hint: the oracle would say",
+                   "unknown words: gry", "closest known phrasing: 'enter the grey room'",
+                   "attempt 2 (correction: 'enter the gry room')", "attempt 3 (correction: 'enter the blue room')",
+                   "carrying", "GIF: "):
+        assert needle in out, needle
+    gifs = sorted((tmp_path / "gifs").glob("*.gif"))
+    assert len(gifs) == 3 and all(g.stat().st_size > 1000 for g in gifs)
+    rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
+    assert [r["correction"] for r in sorted(rows, key=lambda r: r["attempt"])] == ["", "enter the gry room",
+                                                                                 "enter the blue room"]
+    assert main(["teach", "--run-dir", str(run), "--task", "99999", "--out", str(tmp_path)]) == 2
+    assert "outside 0..3239" in capsys.readouterr().err
+
+
+def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(teacher, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from gpl_dist.teach_web import create_app
+
+    client = TestClient(create_app(teacher, tmp_path))
+    a = client.post("/api/episodes", json={"task_id": TASK, "seed": 3}).json()
+    b = client.post("/api/episodes", json={"task_id": TASK, "seed": 4}).json()
+    assert a["episode_id"] != b["episode_id"] and len(a["attempts"]) == 1
+    cases = [
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"correction": ""}, 400, "empty"),
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"correction": "y" * 10_000}, 400, "at most 200"),
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"correction": "go\u0000 north"}, 400, "control"),
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"correction": "向北走"}, 400, "no English words"),
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"correction": "z" * 100_000}, 422, "at most"),
+        ("post", f"/api/episodes/{a['episode_id']}/attempts", {"text": "enter"}, 422, "correction"),
+        ("post", "/api/episodes/nope/attempts", {"correction": "enter the blue room"}, 404, "start a new one"),
+        ("post", "/api/episodes", {"task_id": 99999}, 400, "outside"),
+        ("post", "/api/episodes", {"task_id": "seven"}, 422, "task_id"),
+        ("get", f"/api/episodes/{a['episode_id']}/attempts/5.gif", None, 400, "does not exist"),
+    ]
+    for method, path, body, status, needle in cases:
+        r = client.post(path, json=body) if method == "post" else client.get(path)
+        assert r.status_code == status and needle in r.json()["detail"], (path, body and str(body)[:30], r.text[:200])
+        assert "\n" not in r.json()["detail"]
+    b2 = client.post(f"/api/episodes/{b['episode_id']}/attempts", json={"correction": "enter the grey room"}).json()
+    assert len(b2["attempts"]) == 2 and b2["attempts"][1]["said_before"] == "enter the grey room"
+    a_now = client.post(f"/api/episodes/{a['episode_id']}/attempts", json={"correction": "enter the red room"}).json()
+    assert [x["said_before"] for x in a_now["attempts"]][1:] == ["enter the red room"]  # nothing of b's
+    gif = client.get(a_now["attempts"][1]["gif_url"])
+    assert gif.status_code == 200 and gif.content[:6] == b"GIF89a"
+    check = client.post("/api/check", json={"text": "enter the gry room"}).json()
+    assert check["unknown_words"] == ["gry"] and check["suggestion"] == "enter the grey room"
+    assert client.get(f"/api/episodes/{a['episode_id']}/hint").json()["hint"]
+
+
+def _wait_for_port(port: int, proc: subprocess.Popen, seconds: float = 60) -> None:
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        assert proc.poll() is None, f"gpl-dist serve exited with {proc.returncode}"
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise TimeoutError(f"gpl-dist serve did not listen on {port}")
+
+
+def test_a_browser_teaches_a_full_episode(run, tmp_path):
+    """Headless Chromium (Debian's, installed by .ci/run) through the page: load, first attempt,
+    type a correction with an unknown word (highlighted), fix it, see the second attempt; a second
+    tab's episode stays apart; a screenshot is saved."""
+    from playwright.sync_api import expect, sync_playwright
+
+    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
+    assert chromium, "the browser test needs Debian's chromium (apt-get install chromium; .ci/run does)"
+    port = free_ports(1)[0]
+    server = subprocess.Popen([GPL_DIST, "serve", "--run-dir", str(run), "--port", str(port), "--out", str(tmp_path)],
+                              env=quiet_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        _wait_for_port(port, server)
+        with sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
+            page = browser.new_page()
+            page.goto(f"http://127.0.0.1:{port}/")
+            expect(page.locator("#run")).to_contain_text("multiroom policy (gpl)")
+            page.fill("#task", str(TASK))
+            page.fill("#seed", "3")
+            page.click("#new")
+            expect(page.locator(".attempt")).to_have_count(1, timeout=60_000)
+            page.click("#send")  # an empty correction
+            expect(page.locator("#message")).to_contain_text("empty")
+            page.fill("#correction", "enter the gry room")
+            expect(page.locator("#echo .unknown")).to_have_text("gry ", timeout=10_000)
+            expect(page.locator("#suggestion")).to_contain_text('"enter the grey room"')
+            page.fill("#correction", "enter the grey room")
+            expect(page.locator("#echo .unknown")).to_have_count(0, timeout=10_000)
+            page.click("#send")
+            expect(page.locator(".attempt")).to_have_count(2, timeout=60_000)
+            expect(page.locator(".attempt").nth(1)).to_contain_text("correction: enter the grey room")
+            expect(page.locator(".attempt").nth(1)).to_contain_text("completion")
+            page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && i.naturalWidth > 0)",
+                                   timeout=60_000)
+            other = browser.new_page()  # a second tab: its own episode
+            other.goto(f"http://127.0.0.1:{port}/")
+            other.fill("#task", str(TASK + 1))
+            other.click("#new")
+            expect(other.locator(".attempt")).to_have_count(1, timeout=60_000)
+            page.click("#hint-button")
+            expect(page.locator("#hint")).to_contain_text("The oracle would say:")
+            expect(page.locator(".attempt")).to_have_count(2)
+            shot = tmp_path / "teach-page.png"
+            page.screenshot(path=str(shot), full_page=True)
+            browser.close()
+        assert shot.stat().st_size > 10_000
+        rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
+        assert sorted((r["task_id"], r["attempt"], r["correction"], r["source"]) for r in rows) == [
+            (TASK, 0, "", "web"), (TASK, 1, "enter the grey room", "web"), (TASK + 1, 0, "", "web")]
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
