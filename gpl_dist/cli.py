@@ -16,6 +16,7 @@ import traceback
 from pathlib import Path
 
 from gpl_dist.errors import UsageError
+from gpl_dist.language import PHRASINGS
 
 #: An error line is cut here (a value given on the command line can be arbitrarily long).
 MAX_MESSAGE_CHARS = 600
@@ -95,7 +96,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     seeds = _parse_seeds(args.seeds)
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
-                                max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy)
+                                max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy,
+                                phrasings=args.phrasings)
     import json
     report = json.loads(path.read_text())
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
@@ -303,6 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", help="comma-separated seeds (default: eval.seeds)")
     p.add_argument("--split", help="task split (default: eval.split)")
     p.add_argument("--max-tasks", type=int, help="evaluate only the first N tasks")
+    p.add_argument("--phrasings", choices=PHRASINGS,
+                   help="say instructions and corrections as the oracle does (canonical) or as train/heldout paraphrases")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     acting = p.add_mutually_exclusive_group()
     acting.add_argument("--greedy", dest="greedy", action="store_true", default=None, help="act with the most likely action")

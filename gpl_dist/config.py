@@ -22,6 +22,7 @@ from typing import Any, Mapping
 import yaml
 
 from gpl_dist.errors import UserError
+from gpl_dist.language import PHRASINGS
 
 
 class ConfigError(UserError, ValueError):
@@ -84,6 +85,8 @@ class ModelConfig:
     """Sample earlier attempts every stride-th state ending at their last (the state its correction describes)."""
     policy_batchnorm: bool = False
     """BatchNorm1d after every hidden layer of the policy module's MLP (the authors' code has it)."""
+    paraphrases: bool = False
+    """Train on the domain's training paraphrases of instructions and corrections (their words join the vocabulary)."""
 
 
 @dataclass(frozen=True)
@@ -122,6 +125,8 @@ class EvalConfig:
     """Act with the most likely action at meta-test time instead of sampling (greedy policies loop)."""
     max_tasks: int = 0
     """Evaluate only the first N tasks of the split (0 evaluates all of them)."""
+    phrasings: str = "canonical"
+    """Say instructions and corrections as the oracle does (canonical), or as train or heldout paraphrases."""
 
 
 @dataclass(frozen=True)
@@ -294,6 +299,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         _one_of("env.domain", cfg.env.domain, domain_names()),
         _one_of("model.variant", cfg.model.variant, _VARIANTS),
         _one_of("training.device", cfg.training.device, _DEVICES),
+        _one_of("eval.phrasings", cfg.eval.phrasings, PHRASINGS),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
         (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
         (0 <= cfg.collection.num_corrections <= MAX_CORRECTIONS,
@@ -340,6 +346,9 @@ def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
         _one_of("eval.split", cfg.eval.split, splits, scope),
         (not bad_ids, f"env.task_ids {bad_ids[:5]} are outside {domain}'s tasks 0..{num_tasks - 1}"),
         (len(set(cfg.env.task_ids)) == len(cfg.env.task_ids), "env.task_ids must not repeat a task"),
+        (spec.paraphrases is not None or not cfg.model.paraphrases, f"model.paraphrases: {domain} declares no paraphrases"),
+        (spec.paraphrases is not None or cfg.eval.phrasings == "canonical",
+         f"eval.phrasings {cfg.eval.phrasings}: {domain} declares no paraphrases"),
     ]
 
 

@@ -94,3 +94,80 @@ class Vocabulary:
         """Words of ``ids`` joined by spaces; padding is dropped, unknown ids read ``<unk>``."""
         tokens = (PAD_TOKEN, UNK_TOKEN) + self.words
         return " ".join(tokens[int(i)] if 0 <= int(i) < len(tokens) else UNK_TOKEN for i in ids if int(i) != self.pad_id)
+
+    def extended(self, words: Iterable[str]) -> "Vocabulary":
+        """This vocabulary with ``words`` it lacks appended, in order: every id of this one keeps
+        its meaning, so text without the new words encodes the same."""
+        new = tuple(dict.fromkeys(w for w in words if w not in self._index))
+        return Vocabulary(self.words + new, self.max_tokens)
+
+
+#: Which phrasings a rollout says: the oracle's own sentences, or paraphrases drawn from the
+#: training or the held-out templates (``Paraphrases``).
+PHRASINGS = ("canonical", "train", "heldout")
+
+
+@dataclass(frozen=True)
+class ParaphraseRule:
+    """The paraphrases of one form of sentence.
+
+    Attributes:
+        pattern: a regular expression with named groups that matches the canonical sentence
+            (whole, case-insensitive), e.g. ``enter the (?P<c>\\w+) room``.
+        templates: ``str.format`` templates over the groups; ``templates[0]`` is the canonical form.
+    """
+
+    pattern: str
+    templates: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Paraphrases:
+    """A domain's paraphrases of its instructions and corrections.
+
+    Every rule has the same number of templates; those at ``heldout`` indices are never said in
+    training (``pool="train"`` draws from the others, the canonical one included), and are what
+    ``pool="heldout"`` draws from. A sentence no rule matches (full information, reward texts) is
+    said as it is.
+    """
+
+    rules: tuple[ParaphraseRule, ...]
+    heldout: tuple[int, ...] = (3, 4)
+    _compiled: tuple = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        sizes = {len(r.templates) for r in self.rules}
+        if len(sizes) != 1 or max(self.heldout) >= sizes.pop() or 0 in self.heldout:
+            raise ValueError("paraphrase rules need equally many templates, the canonical one (0) not held out")
+        object.__setattr__(self, "_compiled", tuple(re.compile(r.pattern, re.IGNORECASE) for r in self.rules))
+
+    def pool(self, name: str) -> tuple[int, ...]:
+        """Template indices of ``name`` in ``PHRASINGS``."""
+        n = len(self.rules[0].templates)
+        if name == "train":
+            return tuple(i for i in range(n) if i not in self.heldout)
+        if name == "heldout":
+            return self.heldout
+        if name == "canonical":
+            return (0,)
+        raise ValueError(f"phrasings must be one of {', '.join(PHRASINGS)}, got {name!r}")
+
+    def rewrite(self, text: str, pool: str, rng: "np.random.Generator") -> str:
+        """``text`` said with a template of ``pool`` drawn with ``rng`` (``canonical``: as it is,
+        and ``rng`` is not drawn from)."""
+        indices = self.pool(pool)
+        if pool == "canonical":
+            return text
+        for rule, compiled in zip(self.rules, self._compiled):
+            m = compiled.fullmatch(text.strip())
+            if m:
+                return rule.templates[indices[int(rng.integers(len(indices)))]].format(**m.groupdict())
+        return text
+
+    def words(self, pool: str = "train") -> tuple[str, ...]:
+        """Every literal word of the templates of ``pool`` (what a vocabulary must add to read them)."""
+        found: dict[str, None] = {}
+        for rule in self.rules:
+            for i in self.pool(pool):
+                found.update(dict.fromkeys(split_words(re.sub(r"\{\w+\}", " ", rule.templates[i]))))
+        return tuple(found)

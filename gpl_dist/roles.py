@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence, ru
 
 import numpy as np
 
-from gpl_dist.language import Vocabulary
+from gpl_dist.language import Paraphrases, Vocabulary
 from gpl_dist.records import Attempt, Correction, WorkUnit
 
 if TYPE_CHECKING:
@@ -70,6 +70,9 @@ class DomainSpec:
         correction_phrasings: ``f()`` -> every sentence the oracle's text kinds can say; a person's
             correction is checked against them (``gpl_dist.teaching``: the closest known phrasing).
             None: the vocabulary alone is known.
+        paraphrases: other phrasings of the instructions and corrections (``language.Paraphrases``),
+            for training with paraphrases (``model.paraphrases``) and meta-testing with held-out
+            ones (``eval.phrasings``); None: the domain has only its canonical phrasings.
     """
 
     name: str
@@ -92,6 +95,16 @@ class DomainSpec:
     splits: Mapping[str, tuple[int, ...]] | None = None
     full_information_values: Callable[[int], np.ndarray] | None = None
     correction_phrasings: Callable[[], tuple[str, ...]] | None = None
+    paraphrases: Paraphrases | None = None
+
+    def vocabulary_for(self, paraphrases: bool) -> Vocabulary:
+        """The vocabulary of a model trained with (``paraphrases``) or without paraphrases: the
+        domain's, with the training paraphrases' words appended (ids of the others unchanged)."""
+        if not paraphrases:
+            return self.vocabulary
+        if self.paraphrases is None:
+            raise ValueError(f"domain '{self.name}' declares no paraphrases")
+        return self.vocabulary.extended(self.paraphrases.words("train"))
 
     @property
     def trajectory_samples(self) -> int:
@@ -166,6 +179,9 @@ class CorrectionOracle(Protocol):
 class Policy(Protocol):
     """Acts in many envs at once: the conditioning is encoded once per attempt, then one batched
     forward per step (``workers.loop.Rollout`` drives it; ``GPLPolicy`` and ``MIVOAPolicy`` implement it)."""
+
+    vocabulary: Vocabulary
+    """The words the network reads (``DomainSpec.vocabulary_for``); text is encoded with it."""
 
     @property
     def uses_corrections(self) -> bool:

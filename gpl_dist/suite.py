@@ -42,10 +42,14 @@ import yaml
 
 from gpl_dist.config import ConfigError, RunConfig, config_to_dict, load_config
 from gpl_dist.errors import RunDirError
+from gpl_dist.language import PHRASINGS
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
 RECORD_VERSION = 1
-_EVAL_KEYS = {"split": str, "seeds": list, "num_corrections": int, "greedy_actions": bool, "max_tasks": int}
+_EVAL_KEYS = {"split": str, "seeds": list, "num_corrections": int, "greedy_actions": bool, "max_tasks": int,
+              "phrasings": str}
+#: Evaluation settings a suite file may leave out, with their values (also read into older records).
+EVAL_DEFAULTS = {"max_tasks": 0, "phrasings": "canonical"}
 
 
 @dataclass(frozen=True)
@@ -63,12 +67,15 @@ class Evaluation:
     """Argmax actions instead of sampled ones."""
     max_tasks: int
     """Evaluate the split's first tasks only (0: all)."""
+    phrasings: str = "canonical"
+    """Instructions and corrections said as the oracle does (canonical) or as train/heldout paraphrases."""
 
     def overrides(self) -> dict[str, str]:
         """This evaluation as ``eval.*`` config overrides."""
         return {"eval.split": self.split, "eval.seeds": json.dumps(list(self.seeds)),
                 "eval.num_corrections": str(self.num_corrections),
-                "eval.greedy_actions": "true" if self.greedy_actions else "false", "eval.max_tasks": str(self.max_tasks)}
+                "eval.greedy_actions": "true" if self.greedy_actions else "false", "eval.max_tasks": str(self.max_tasks),
+                "eval.phrasings": self.phrasings}
 
 
 @dataclass(frozen=True)
@@ -139,13 +146,15 @@ def _seeds(where: str, value: Any) -> tuple[int, ...]:
 
 
 def _evaluation(where: str, name: str, raw: Any) -> Evaluation:
-    _keys(where, raw, set(_EVAL_KEYS), set(_EVAL_KEYS) - {"max_tasks"})
+    _keys(where, raw, set(_EVAL_KEYS), set(_EVAL_KEYS) - set(EVAL_DEFAULTS))
     for key, tp in _EVAL_KEYS.items():
-        value = raw.get(key, 0)
+        value = raw.get(key, EVAL_DEFAULTS.get(key, 0))
         _expect(isinstance(value, tp) and (tp is bool or not isinstance(value, bool)), f"{where}.{key}",
                 f"expected {tp.__name__}, got {value!r}")
+    phrasings = raw.get("phrasings", "canonical")
+    _expect(phrasings in PHRASINGS, f"{where}.phrasings", f"expected one of {', '.join(PHRASINGS)}, got {phrasings!r}")
     return Evaluation(name, raw["split"], _seeds(f"{where}.seeds", raw["seeds"]), raw["num_corrections"],
-                      raw["greedy_actions"], raw.get("max_tasks", 0))
+                      raw["greedy_actions"], raw.get("max_tasks", 0), phrasings)
 
 
 def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[str, Evaluation]) -> Entry:
@@ -276,7 +285,8 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
     done = (read_record(run.run_dir) or {}).get("evaluations", {})
     for name, ev in done.items():
         now = json.loads(json.dumps(dataclasses.asdict(suite.evaluations[name]))) if name in suite.evaluations else None
-        if now is not None and ev.get("settings") != now:  # compared as recorded: JSON lists, not tuples
+        recorded = {**EVAL_DEFAULTS, **(ev.get("settings") or {})}  # a setting added later: its default
+        if now is not None and recorded != now:  # compared as recorded: JSON lists, not tuples
             raise ConfigError(f"{run.run_dir}: evaluation '{name}' was made with other settings than the suite "
                               f"gives now ({ev.get('settings')}): use another --out, or delete {ev.get('file')} and "
                               f"its entry in suite-run.json to evaluate it again")
@@ -309,7 +319,7 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
         log(f"[{run.entry.name} seed {run.seed}] evaluation '{name}'")
         t0 = time.perf_counter()
         _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
-                               max_tasks=ev.max_tasks, greedy=ev.greedy_actions)
+                               max_tasks=ev.max_tasks, greedy=ev.greedy_actions, phrasings=ev.phrasings)
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
                                        "commit": commit, "settings": dataclasses.asdict(ev)}
         _write_record(run.run_dir, record)

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.errors import RunDirError
-from gpl_dist.suite import RECORD_VERSION
+from gpl_dist.suite import EVAL_DEFAULTS, RECORD_VERSION
 
 
 @dataclass(frozen=True)
@@ -109,6 +109,15 @@ PAPER_TABLES = (
         PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, _gpl("relocation")),
         PaperRow("Relocation GPR", "relocation-gpr", "test", _C05, (None,) * 6),
     )),
+    PaperTable("paraphrases", "Paraphrased language (not in the paper): GPL meta-tested with the oracle's own "
+               "sentences and with held-out phrasings (new sentences of training words), trained with the canonical "
+               "phrasings or with the training paraphrases (model.paraphrases)", _C05, (
+        PaperRow("Multi-room GPL, canonical phrasings", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
+        PaperRow("Multi-room GPL, held-out phrasings", "multiroom-gpl", "test-heldout-phrasings", _C05, (None,) * 6),
+        PaperRow("Multi-room GPL + paraphrases, canonical", "multiroom-paraphrases", "test", _C05, (None,) * 6),
+        PaperRow("Multi-room GPL + paraphrases, held-out", "multiroom-paraphrases", "test-heldout-phrasings", _C05,
+                 (None,) * 6),
+    )),
 )
 
 
@@ -158,7 +167,8 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
         run_dir = record_path.parent
         for name, ev in record.get("evaluations", {}).items():
             payload = _read_json(run_dir / ev["file"])
-            settings = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in ev["settings"].items())
+            recorded = {**EVAL_DEFAULTS, **ev["settings"]}  # a setting added later: its default
+            settings = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in recorded.items())
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
                                      tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),

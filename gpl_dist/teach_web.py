@@ -168,7 +168,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test") -> FastAPI:
 
     @app.post("/api/check", response_model=CheckView)
     def check(body: CheckRequest) -> CheckView:
-        c = check_correction(domain, body.text)
+        c = check_correction(domain, body.text, vocabulary=teacher.model.vocabulary)
         return CheckView(words=list(c.words)[:100], unknown_words=list(c.unknown_words)[:100],
                          suggestion=c.suggestion, problem=c.problem)
 

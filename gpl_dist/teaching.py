@@ -39,7 +39,7 @@ import numpy as np
 import pyarrow as pa
 
 from gpl_dist.errors import UsageError
-from gpl_dist.language import split_words
+from gpl_dist.language import Vocabulary, split_words
 from gpl_dist.records import Correction
 from gpl_dist.roles import DomainSpec
 
@@ -84,11 +84,13 @@ class CorrectionCheck:
         return self.problem is None
 
 
-def check_correction(domain: DomainSpec, text: str, what: str = "correction") -> CorrectionCheck:
-    """``CorrectionCheck`` of ``text`` for ``domain``'s policy (``what`` names it in messages)."""
+def check_correction(domain: DomainSpec, text: str, what: str = "correction",
+                     vocabulary: Vocabulary | None = None) -> CorrectionCheck:
+    """``CorrectionCheck`` of ``text`` for a policy of ``domain`` that reads ``vocabulary`` (default
+    the domain's; a model trained with paraphrases reads more); ``what`` names it in messages."""
     text = (text if isinstance(text, str) else "")[: MAX_TEXT_CHARS * 50].strip()
     words = tuple(split_words(text))
-    vocab = domain.vocabulary
+    vocab = vocabulary or domain.vocabulary
     ids = tuple(int(i) for i in vocab.encode(text) if i != vocab.pad_id)
     unknown = tuple(dict.fromkeys(w for w in words if vocab.token_id(w) == vocab.unk_id))
     phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
@@ -193,7 +195,7 @@ class Teacher:
         rng = np.random.default_rng([seed, 0x7EAC])
         if instruction is None:
             return int(tasks[int(rng.integers(len(tasks)))])
-        check = check_correction(d, instruction, "instruction")
+        check = check_correction(d, instruction, "instruction", self.model.vocabulary)
         if check.problem:
             raise TeachingError(check.problem)
         by_instruction: dict[tuple[str, ...], list[int]] = {}
@@ -283,7 +285,7 @@ class TeachingEpisode:
 
     def check(self, text: str) -> CorrectionCheck:
         """``check_correction`` against this episode's policy (for highlighting as one types)."""
-        return check_correction(self.teacher.domain, text)
+        return check_correction(self.teacher.domain, text, vocabulary=self.teacher.model.vocabulary)
 
     def attempt(self, correction: str | None = None) -> TaughtAttempt:
         """The next attempt: the first one without ``correction``, each later one after it.

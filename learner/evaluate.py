@@ -27,6 +27,7 @@ from gpl_dist.config import MAX_CORRECTIONS, RunConfig, config_from_dict
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
+from gpl_dist.language import PHRASINGS
 from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, PolicyNetwork, build_model_from_config
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
@@ -112,22 +113,23 @@ def load_trained_policy(run_dir: str | Path, checkpoint: str | None = None) -> t
     return cfg, model, ckpt.round_index
 
 
-def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False) -> Rollout:
-    """The rollout loop as Algorithm 2 runs it: the run's oracle corrects, and the policy is
-    conditioned as the run's ``model`` section says."""
+def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False, phrasings: str = "canonical") -> Rollout:
+    """The rollout loop as Algorithm 2 runs it: the run's oracle corrects (said in ``phrasings``),
+    and the policy is conditioned as the run's ``model`` section says."""
     domain = get_domain(cfg.env.domain)
     return Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
                    end_aligned=cfg.model.trajectory_ends_at_last_state,
-                   full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS)
+                   full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS, phrasings=phrasings)
 
 
 def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
                     max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
-                    tasks: tuple[int, ...] | None = None) -> EvalResult:
+                    tasks: tuple[int, ...] | None = None, phrasings: str = "canonical") -> EvalResult:
     """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them).
 
     ``model`` is rolled out as it is, in eval mode (its training mode is restored afterwards),
-    conditioned as the run's ``model`` section says; the run's oracle gives the corrections.
+    conditioned as the run's ``model`` section says; the run's oracle gives the corrections,
+    and the instruction and corrections are said in ``phrasings`` (``language.PHRASINGS``).
     """
     domain = get_domain(cfg.env.domain)
     tasks = tasks or split_tasks(domain.name, split)
@@ -135,7 +137,7 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
         tasks = tasks[:max_tasks]
     if any(p.device.type != "cpu" for p in model.parameters()):
         model = copy.deepcopy(model).cpu()  # rollouts run on the CPU, beside the envs
-    rollout = meta_test_rollout(cfg, model, greedy)
+    rollout = meta_test_rollout(cfg, model, greedy, phrasings)
     was_training = model.training
     model.eval()
     start = time.perf_counter()
@@ -221,19 +223,20 @@ def plot(domain: str, result: EvalResult, path: Path, title: str, with_paper: bo
 
 
 def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: int, seeds: tuple[int, ...],
-                max_tasks: int, checkpoint: str | None) -> str:
+                max_tasks: int, checkpoint: str | None, phrasings: str = "canonical") -> str:
     """``eval`` for the run's own evaluation settings, else ``eval-`` plus what differs from them."""
     e = cfg.eval
     tags = [split if split != e.split else "", ("greedy" if greedy else "sampled") if greedy != e.greedy_actions else "",
             f"c{num_corrections}" if num_corrections != e.num_corrections else "",
             "seeds" + "_".join(str(s) for s in seeds) if tuple(seeds) != tuple(e.seeds) else "",
-            f"first{max_tasks}" if max_tasks != e.max_tasks else "", Path(checkpoint).stem if checkpoint else ""]
+            f"first{max_tasks}" if max_tasks != e.max_tasks else "", Path(checkpoint).stem if checkpoint else "",
+            f"{phrasings}-phrasings" if phrasings != e.phrasings else ""]
     return "-".join(["eval", *(t for t in tags if t)])
 
 
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
                  split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
-                 greedy: bool | None = None) -> tuple[EvalResult, Path]:
+                 greedy: bool | None = None, phrasings: str | None = None) -> tuple[EvalResult, Path]:
     """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
     ``report_stem``) and returns the result and the JSON's path."""
     run_dir = Path(run_dir)
@@ -252,14 +255,20 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
     seeds = tuple(seeds or cfg.eval.seeds)
     max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks
+    phrasings = phrasings or cfg.eval.phrasings
+    if phrasings not in PHRASINGS:
+        raise UsageError(f"phrasings must be one of {', '.join(PHRASINGS)}, got {phrasings!r}")
+    if phrasings != "canonical" and get_domain(cfg.env.domain).paraphrases is None:
+        raise UsageError(f"{cfg.env.domain} declares no paraphrases: only canonical phrasings can be evaluated")
     result = evaluate_policy(cfg, model, num_corrections=k, seeds=seeds, split=split,
-                             max_tasks=max_tasks, greedy=greedy)
+                             max_tasks=max_tasks, greedy=greedy, phrasings=phrasings)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
-                       checkpoint=checkpoint)
+                       checkpoint=checkpoint, phrasings=phrasings)
     payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
                "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
                "seeds": list(seeds), "max_tasks": max_tasks,
-               "greedy_actions": greedy, "num_tasks": result.num_tasks,
+               "greedy_actions": greedy, "phrasings": phrasings, "trained_with_paraphrases": cfg.model.paraphrases,
+               "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
                "correction_effort": dataclasses.asdict(result.effort),

@@ -10,6 +10,7 @@ from gymnasium.utils.env_checker import check_env
 import gpl_dist  # noqa: F401  (registers the envs)
 from gpl_dist.domains import BUILTIN_DOMAINS, get_domain
 from gpl_dist.envs import ENV_IDS
+from gpl_dist.language import split_words
 from gpl_dist.splits import load_splits
 
 SPECS = {get_domain(name).env_id: get_domain(name) for name in BUILTIN_DOMAINS}
@@ -124,3 +125,28 @@ def test_every_oracle_correction_is_a_listed_phrasing(env_id):
             said.add(spec.make_corrector(kind).correct(env, np.random.default_rng(task_id)).text)
     assert said and {" ".join(s.lower().split()) for s in said} <= known
     assert all(w in spec.vocabulary.words for s in known for w in s.split())
+
+
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_paraphrases_cover_every_sentence_and_hold_out_no_word(env_id):
+    """Every instruction and oracle sentence has at least five phrasings, the first its own; the
+    held-out phrasings are new sentences of words training phrasings use (a paraphrase test, not
+    an unknown-word one); a model trained with paraphrases reads every phrasing without <unk>."""
+    spec = SPECS[env_id]
+    p = spec.paraphrases
+    assert p is not None and len(p.rules[0].templates) >= 5
+    instructions = {spec.make_env(t).instruction for t in range(0, spec.num_tasks, 7)}
+    rng = np.random.default_rng(0)
+    vocab = spec.vocabulary_for(True)
+    seen_in_training = set(p.words("train")) | set(spec.vocabulary.words)
+    assert set(p.words("heldout")) <= seen_in_training
+    for text in sorted(instructions) + list(spec.correction_phrasings()):
+        matching = [r for r, c in zip(p.rules, p._compiled) if c.fullmatch(text)]
+        assert len(matching) == 1, text
+        groups = p._compiled[p.rules.index(matching[0])].fullmatch(text).groupdict()
+        assert matching[0].templates[0].format(**groups) == text
+        for pool in ("train", "heldout"):
+            said = p.rewrite(text, pool, rng)
+            assert vocab.unk_id not in vocab.encode(said) and len(split_words(said)) <= vocab.max_tokens, said
+    heldout_only = {p.rewrite(t, "heldout", rng) for t in instructions} - {p.rewrite(t, "train", rng) for t in instructions}
+    assert heldout_only

@@ -184,3 +184,27 @@ def test_a_changed_evaluation_and_an_empty_selection_are_refused(tmp_path, capsy
     _one_line_error(capsys, "select no run")
     assert main(["suite", "run", str(first), "--out", str(out), "--serial", "--address", "auto"]) == 2
     _one_line_error(capsys, "give one of them")
+
+
+def test_held_out_phrasings_are_an_evaluation_and_older_records_still_count(tmp_path):
+    """An evaluation may name its phrasings; a record written before that setting existed reads
+    as canonical, so adding the setting neither re-runs nor refuses finished runs."""
+    out = tmp_path / "out"
+    ev = {"split": "test", "seeds": [0], "num_corrections": 2, "greedy_actions": False, "max_tasks": 2}
+    path = write_suite(tmp_path / "s.yaml", {"para": entry(**{"training.num_rounds": 1, "model.paraphrases": True},
+                                                          evaluations=("test", "test-heldout-phrasings"))},
+                       {"test": ev, "test-heldout-phrasings": {**ev, "phrasings": "heldout"}})
+    suite = load_suite(path)
+    run_suite(suite, out, serial=True, progress=False)
+    run = plan(suite, out)[0]
+    record = json.loads((run.run_dir / "suite-run.json").read_text())
+    heldout = json.loads((run.run_dir / record["evaluations"]["test-heldout-phrasings"]["file"]).read_text())
+    assert heldout["phrasings"] == "heldout" and record["evaluations"]["test"]["file"] != heldout
+    for ev_record in record["evaluations"].values():  # as an older gpl-dist wrote them
+        if ev_record["settings"]["phrasings"] == "canonical":
+            del ev_record["settings"]["phrasings"]
+    (run.run_dir / "suite-run.json").write_text(json.dumps(record))
+    assert run_state(run, suite) == "done"
+    assert {r.evaluation for r in collect_results(out)} == {"test", "test-heldout-phrasings"}
+    with pytest.raises(ConfigError, match="phrasings"):
+        load_suite(write_suite(tmp_path / "bad.yaml", {"a": entry()}, {"test": {**ev, "phrasings": "mumbled"}}))

@@ -114,12 +114,25 @@ class Rollout:
         end_aligned: subsample earlier attempts ending at their last state
             (``ModelConfig.trajectory_ends_at_last_state``).
         full_information: condition on the oracle's full-information text instead of the instruction.
+        phrasings: say the instruction and the oracle's corrections as they are (``canonical``),
+            or as the domain's ``train`` or ``heldout`` paraphrases (``language.Paraphrases``;
+            drawn with ``derive_rng(seed, task, 0xFA)`` and ``derive_rng(seed, task, k, 0xFB)``).
+            A person's corrections are paraphrased too unless ``canonical``.
+
+    Text is encoded with the policy's own vocabulary (``policy.vocabulary``): words it lacks read
+    as ``<unk>``.
     """
 
     def __init__(self, domain: DomainSpec, policy: PolicyNetwork, corrections: CorrectionSource,
                  expert: Expert | None = None, *, greedy: bool = False, end_aligned: bool = False,
-                 full_information: bool = False):
+                 full_information: bool = False, phrasings: str = "canonical"):
         self.domain = domain
+        self.vocab = policy.vocabulary
+        self.phrasings = phrasings
+        if phrasings != "canonical" and domain.paraphrases is None:
+            raise ValueError(f"phrasings {phrasings!r}: domain '{domain.name}' declares no paraphrases")
+        if domain.paraphrases is not None:
+            domain.paraphrases.pool(phrasings)  # an unknown name fails here
         self.policy = policy
         self.corrections = corrections
         self.expert = expert
@@ -142,7 +155,7 @@ class Rollout:
             if active.size == 0:
                 break
             reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
-            buffers = self._reset(batch, active, k, reset_seeds)
+            buffers = self._reset(batch, active, k, reset_seeds, seed)
             infos, returns = self._step_attempt(batch, active, buffers, action_rng, k)
             self._finish_attempt(batch, active, buffers, infos, returns, k, reset_seeds,
                                  seed=seed, split=split, last=k == max_attempts - 1, policy_version=policy_version)
@@ -161,7 +174,7 @@ class Rollout:
                 batch.fail(i, "env construction", err)
         return batch
 
-    def _reset(self, batch: _Batch, active: np.ndarray, k: int, reset_seeds: list[int]) -> _AttemptBuffers:
+    def _reset(self, batch: _Batch, active: np.ndarray, k: int, reset_seeds: list[int], seed: int) -> _AttemptBuffers:
         d = self.domain
         m, steps = active.size, d.steps_per_attempt
         soft = self.expert is not None and self.expert.soft_labels
@@ -172,9 +185,11 @@ class Rollout:
         for j, i in enumerate(active):
             try:
                 buffers.obs[j, 0] = batch.envs[i].reset(seed=reset_seeds[j])[0]
-                if k == 0:
-                    batch.instructions[i] = (self.corrections.full_information(batch.envs[i])  # type: ignore[union-attr]
-                                             if self.full_information else batch.envs[i].instruction)
+                if k == 0 and self.full_information:
+                    batch.instructions[i] = self.corrections.full_information(batch.envs[i])  # type: ignore[union-attr]
+                elif k == 0:
+                    rng = derive_rng(seed, batch.task_ids[i], 0xFA) if self.phrasings != "canonical" else None
+                    batch.instructions[i] = self._say(batch.envs[i].instruction, rng)
             except Exception as err:  # noqa: BLE001
                 batch.fail(i, "reset", err)
         return buffers
@@ -244,7 +259,7 @@ class Rollout:
                         policy_version: int) -> None:
         """Record each active task's attempt, with the correction that follows it unless it
         solved the task or was the last."""
-        vocab = self.domain.vocabulary
+        vocab = self.vocab
         for j, i in enumerate(active):
             if batch.failed[i]:
                 continue
@@ -258,6 +273,8 @@ class Rollout:
                     batch.fail(int(i), "correction", err)
                     continue
                 text, kind = corr.text, corr.kind
+                if self.phrasings != "canonical":
+                    text = self._say(text, derive_rng(seed, task_id, k, 0xFB))
             corr_ids = vocab.encode(text) if text else np.zeros(vocab.max_tokens, dtype=np.int64)
             batch.attempts[i].append(Attempt(
                 task_id=task_id, split=split, attempt_index=k,
@@ -272,13 +289,19 @@ class Rollout:
             batch.histories[i].append((buffers.obs[j, self.traj_times], corr_ids, returns[j]))
             batch.solved[i] = success
 
+    def _say(self, text: str, rng: np.random.Generator | None) -> str:
+        """``text`` in this rollout's phrasings (as it is for ``canonical``)."""
+        if rng is None or self.domain.paraphrases is None:
+            return text
+        return self.domain.paraphrases.rewrite(text, self.phrasings, rng)
+
     def _correct(self, env: Any, rng: np.random.Generator) -> Correction:
         source = self.corrections
         return source.correct(env, rng) if hasattr(source, "correct") else source(env, rng)  # type: ignore[operator,union-attr]
 
     def _conditioning(self, instructions: list[str], histories: list[list[tuple[np.ndarray, np.ndarray, float]]],
                       k: int, task_ids: list[int]) -> Conditioning:
-        vocab, d = self.domain.vocabulary, self.domain
+        vocab, d = self.vocab, self.domain
         m = len(instructions)
         pairs = [pair for hist in histories for pair in hist[:k]]
         traj = np.zeros((len(pairs), d.trajectory_samples) + d.obs_shape, dtype=d.obs_dtype)

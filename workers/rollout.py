@@ -84,7 +84,8 @@ class RolloutWorker:
         self.rollout = Rollout(domain, self.model, make_corrector(domain.name, settings.env.correction_kind), expert,
                                greedy=settings.collection.greedy_actions,
                                end_aligned=settings.model.trajectory_ends_at_last_state,
-                               full_information=settings.model.variant in FULL_INFORMATION_VARIANTS)
+                               full_information=settings.model.variant in FULL_INFORMATION_VARIANTS,
+                               phrasings="train" if settings.model.paraphrases else "canonical")
         self.failures: list[TaskFailure] = []
 
     def set_weights(self, weights: dict[str, np.ndarray], policy_version: int) -> None:

@@ -37,7 +37,7 @@ from gpl_dist.envs.multiroom_core import (
     get_task,
     task_static,
 )
-from gpl_dist.language import Vocabulary
+from gpl_dist.language import ParaphraseRule, Paraphrases, Vocabulary
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec, lazy
 
@@ -58,6 +58,44 @@ WORDS = (
     "reward", "of", "zero", "one", "two", "three", "four", "five",
 )
 VOCABULARY = Vocabulary(words=WORDS, max_tokens=32)
+
+_THING = "(?P<thing>the object room|the object|the exit|the goal room|the goal)"
+#: Five phrasings of the instruction and of every correction form (``Paraphrases``): the
+#: canonical one, two said in training (``model.paraphrases``), two held out for
+#: ``eval.phrasings: heldout``. Held-out phrasings are new sentences of words that training
+#: phrasings use (``tests/test_env_contract.py`` checks), so they test the text encoders'
+#: generalisation, not unseen words.
+PARAPHRASES = Paraphrases((
+    ParaphraseRule(r"move (?P<oc>\w+) (?P<os>\w+) to (?P<gc>\w+) square", (
+        "Move {oc} {os} to {gc} square", "bring the {oc} {os} to the {gc} square",
+        "carry the {oc} {os} over to the {gc} goal", "bring the {oc} {os} over to the {gc} goal",
+        "carry the {oc} {os} to the {gc} square")),
+    ParaphraseRule(r"enter the (?P<c>\w+) room", (
+        "enter the {c} room", "go into the {c} room", "walk inside the {c} room", "go inside the {c} room",
+        "walk into the {c} room")),
+    ParaphraseRule(r"pick up the (?P<c>\w+) (?P<s>\w+)", (
+        "pick up the {c} {s}", "grab the {c} {s}", "take the {c} {s} with you", "take the {c} {s}",
+        "grab the {c} {s} with you")),
+    ParaphraseRule(r"exit the (?P<c>\w+) room", (
+        "exit the {c} room", "leave the {c} room", "get out of the {c} room", "go out of the {c} room",
+        "walk out of the {c} room")),
+    ParaphraseRule(r"go to the (?P<c>\w+) goal", (
+        "go to the {c} goal", "walk to the {c} square", "stand on the {c} goal", "go to the {c} square",
+        "stand on the {c} square")),
+    ParaphraseRule(_THING + r" is (?P<d>\w+)", (
+        "{thing} is {d}", "{thing} lies {d}", "head {d} for {thing}", "go {d} for {thing}", "{thing} lies {d} of you")),
+    ParaphraseRule(r"you are in the (?P<rw>right|wrong) room", (
+        "you are in the {rw} room", "this is the {rw} room", "you stand in the {rw} room",
+        "you are inside the {rw} room", "you stand inside the {rw} room")),
+    ParaphraseRule(r"you have the (?P<rw>right|wrong) object", (
+        "you have the {rw} object", "you carry the {rw} object", "you are holding the {rw} object",
+        "the {rw} object is with you", "you carry the {rw} object with you")),
+    ParaphraseRule(r"you do not have the object", (
+        "you do not have the object", "you are not holding the object", "you carry no object",
+        "you do not carry the object", "you are holding no object")),
+    ParaphraseRule(r"you are done", (
+        "you are done", "well done", "the task is done", "the task is well done", "done well")),
+))
 
 #: Correction oracle kinds (``gpl_dist.corrections.multiroom``): ``default`` is the paper's subgoal oracle.
 CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward")
@@ -453,6 +491,7 @@ DOMAIN = DomainSpec(
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.multiroom:make_multiroom_corrector"),
     correction_phrasings=lazy("gpl_dist.corrections.multiroom:phrasings"),
+    paraphrases=PARAPHRASES,
     model_sizes=Sizes(
         state_channels=(8, 8), state_mlp=(32, 32),
         traj_state_channels=(4, 4), traj_state_mlp=(32, 32), traj_conv=4, traj_mlp=(16, 4),

@@ -20,7 +20,7 @@ from gymnasium import spaces
 
 from gpl_dist.envs.modes import check_modes
 from gpl_dist.errors import UsageError
-from gpl_dist.language import Vocabulary
+from gpl_dist.language import ParaphraseRule, Paraphrases, Vocabulary
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec, lazy
 
@@ -83,6 +83,26 @@ VOCABULARY = Vocabulary(
     ),
     max_tokens=24,
 )
+
+_DIR = "(?P<d>up right|up left|down right|down left|up|down|left|right)"
+#: Five phrasings of the instruction and of every correction form, as in multi-room
+#: (``gpl_dist.envs.multiroom.PARAPHRASES``): canonical, two for training, two held out.
+PARAPHRASES = Paraphrases((
+    ParaphraseRule(r"move (?P<b>\w+) close to (?P<o>\w+)", (
+        "Move {b} close to {o}", "push the {b} block near the {o} block", "bring {b} next to {o}",
+        "push the {b} block next to the {o} block", "bring the {b} block near {o}")),
+    ParaphraseRule(r"touch the (?P<c>\w+) block", (
+        "Touch the {c} block", "push the {c} block", "you should move the {c} block", "you should push the {c} block",
+        "move the {c} block")),
+    ParaphraseRule(r"move a (?P<amt>little|lot) " + _DIR, (
+        "Move a {amt} {d}", "go a {amt} {d}", "push it a {amt} {d}", "push a {amt} {d}", "go {d} a {amt}")),
+    ParaphraseRule(r"move closer to the (?P<c>\w+) block", (
+        "Move closer to the {c} block", "go closer to the {c} block", "push it nearer to the {c} block",
+        "push it closer to the {c} block", "go nearer to the {c} block")),
+    ParaphraseRule(r"move " + _DIR + r" of the (?P<c>\w+) block", (
+        "Move {d} of the {c} block", "go {d} of the {c} block", "push it to the {d} of the {c} block",
+        "push it {d} of the {c} block", "go to the {d} of the {c} block")),
+))
 
 #: Correction oracle kinds (``gpl_dist.corrections.relocation``): ``default`` is the paper's mixed oracle.
 CORRECTION_KINDS = ("default", "mixed", "directional", "relational", "touch", "reward")
@@ -512,6 +532,7 @@ DOMAIN = DomainSpec(
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.relocation:make_relocation_corrector"),
     correction_phrasings=lazy("gpl_dist.corrections.relocation:phrasings"),
+    paraphrases=PARAPHRASES,
     model_sizes=Sizes(
         state_channels=(), state_mlp=(),
         traj_state_channels=(), traj_state_mlp=(), traj_conv=8, traj_mlp=(16, 8),

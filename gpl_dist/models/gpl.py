@@ -343,12 +343,13 @@ class GPLPolicy(nn.Module):
     """The GPL network for one domain; ``variant`` selects the paper's baselines and ablations."""
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
-                 policy_batchnorm: bool = False):
+                 policy_batchnorm: bool = False, paraphrases: bool = False):
         super().__init__()
         self.domain_name = domain.name
         self.variant = variant
         sizes = domain.model_sizes
-        vocab = domain.vocabulary
+        #: the words this network reads (``DomainSpec.vocabulary_for``): text is encoded with it
+        self.vocabulary = vocab = domain.vocabulary_for(paraphrases)
         self.embedding = nn.Embedding(vocab.size, embedding_dim, padding_idx=vocab.pad_id)
         #: full information as numbers (relocation's block and coordinates), read by an MLP
         self.numeric_full_information = variant == "full_information" and domain.full_information_values is not None
@@ -436,24 +437,25 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 
 
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
-                policy_batchnorm: bool = False) -> "PolicyNetwork":
+                policy_batchnorm: bool = False, paraphrases: bool = False) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
-    ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``."""
+    ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
+    ``paraphrases``, it reads the words of the domain's training paraphrases too."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
     cls: type[GPLPolicy] | type[MIVOAPolicy] = MIVOAPolicy if variant in MIVOA_VARIANTS else GPLPolicy
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            return cls(domain, variant, embedding_dim, policy_batchnorm)
-    return cls(domain, variant, embedding_dim, policy_batchnorm)
+            return cls(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
+    return cls(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
 
 
 def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = None) -> "PolicyNetwork":
     """The model a run's ``model`` section (``gpl_dist.config.ModelConfig``) describes: the one
     mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
-                       policy_batchnorm=model_cfg.policy_batchnorm)
+                       policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
