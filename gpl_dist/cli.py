@@ -140,6 +140,21 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_suite_rl(args: argparse.Namespace) -> int:
+    """``gpl-dist suite rl``: RL per test task against GPL and GPR (the suite file's ``rl`` section)."""
+    from gpl_dist.suite import load_suite
+    from gpl_dist.suite_rl import run_rl_plan
+
+    if args.serial and args.address:
+        raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
+    suite = load_suite(args.suite)
+    if suite.rl is None:
+        raise UsageError(f"{args.suite} has no 'rl' section")
+    ran = run_rl_plan(suite.rl, args.out, address=args.address, serial=args.serial, domains=_names(args.domains))
+    print(f"suite {args.suite}: {ran} RL job(s) ran; every selected one is done; report with: gpl-dist suite report {args.out}")
+    return 0
+
+
 def cmd_suite_report(args: argparse.Namespace) -> int:
     """``gpl-dist suite report``: the paper's tables from a suite's eval files, as Markdown and HTML."""
     from gpl_dist.suite_report import write_report
@@ -327,6 +342,13 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
             q.add_argument("--no-progress", action="store_true", help="no progress bars")
         q.set_defaults(func=func)
+    q = suite_sub.add_parser("rl", help="RL per test task (stable-baselines3 PPO) against GPL and GPR: the suite's rl section")
+    q.add_argument("suite", help="suite file with an 'rl' section (e.g. configs/suites/paper.yaml)")
+    q.add_argument("--out", required=True, help="the suite's folder of run dirs; results go to OUT/rl/")
+    q.add_argument("--domains", help="comma-separated domains (default: every domain of the rl section)")
+    q.add_argument("--address", help="a Ray cluster (default: local Ray with every core)")
+    q.add_argument("--serial", action="store_true", help="one job after another in this process, without Ray")
+    q.set_defaults(func=cmd_suite_rl)
     q = suite_sub.add_parser("report", help="the paper's tables from a suite's runs (Markdown and HTML)")
     q.add_argument("suite_out", help="the suite's folder of run dirs")
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")

@@ -100,6 +100,8 @@ class Suite:
     path: Path
     evaluations: Mapping[str, Evaluation]
     entries: tuple[Entry, ...]
+    rl: Any = None
+    """The ``rl`` section (``gpl_dist.suite_rl.RLPlan``): RL per test task against GPL and GPR; None when absent."""
 
     def entry(self, name: str) -> Entry:
         for e in self.entries:
@@ -184,7 +186,7 @@ def load_suite(path: str | Path) -> Suite:
         raw = yaml.safe_load(path.read_text())
     except yaml.YAMLError as err:
         raise ConfigError(f"{path} is not valid YAML ({str(err).splitlines()[0]})") from None
-    _keys(str(path), raw, {"evaluations", "entries"}, {"evaluations", "entries"})
+    _keys(str(path), raw, {"evaluations", "entries", "rl"}, {"evaluations", "entries"})
     for section in ("evaluations", "entries"):
         _expect(isinstance(raw[section], dict) and bool(raw[section]), f"{path}: {section}",
                 f"expected a mapping of names, got {type(raw[section]).__name__}")
@@ -194,7 +196,12 @@ def load_suite(path: str | Path) -> Suite:
         _expect(isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum(), f"{path}: entries",
                 f"an entry's name is letters, digits, '-' and '_' (it names a folder), got {name!r}")
         entries.append(_entry(f"{path}: entries.{name}", name, spec, path.parent, evaluations))
-    suite = Suite(path, evaluations, tuple(entries))
+    rl = None
+    if "rl" in raw:
+        from gpl_dist.suite_rl import parse_rl_plan
+
+        rl = parse_rl_plan(f"{path}: rl", raw["rl"], tuple(e.name for e in entries))
+    suite = Suite(path, evaluations, tuple(entries), rl)
     for e in suite.entries:
         for name in e.evaluations:  # every evaluation's split too, not only the run's own
             cfg = SuiteRun(e, e.seeds[0], Path(".")).config(suite, name)  # fails in one line on a bad key or choice

@@ -60,3 +60,37 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, commit:
     if failed:
         names = ", ".join(f"{r.entry.name}/seed{r.seed}" for r in failed)
         raise SuiteError(f"{len(failed)} suite run(s) failed on the cluster ({names}); run the suite again to resume them")
+
+
+@ray.remote(num_cpus=1, max_retries=0)
+def _rl_task(job, settings, weights, policy_batchnorm: bool):
+    from learner.rl import run_rl_job
+
+    return run_rl_job(job, settings, weights, policy_batchnorm)
+
+
+def run_rl_on_ray(jobs: list, settings, weights: dict, address: str | None, on_done, log=print) -> None:
+    """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
+    as each finishes. ``weights``: domain -> (numpy weights, policy_batchnorm) for ``rl-finetune``,
+    put in the object store once. Raises after all ended if any failed."""
+    owned = init_ray(address, num_workers=1)
+    try:
+        shared = {d: (ray.put(w), bn) for d, (w, bn) in weights.items()}
+        pending = {}
+        for job in jobs:
+            w, bn = shared[job.domain] if job.method == "rl-finetune" else (None, False)
+            pending[_rl_task.remote(job, settings, w, bn)] = job
+        failed = []
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            job = pending.pop(done[0])
+            try:
+                on_done(job, ray.get(done[0]))
+            except ray.exceptions.RayError as err:
+                failed.append(job.key)
+                log(f"[rl] {job.key} FAILED: {str(err).strip().splitlines()[-1][:300]}")
+        if failed:
+            raise SuiteError(f"{len(failed)} RL job(s) failed ({', '.join(failed[:5])}); run again to resume them")
+    finally:
+        if owned:
+            ray.shutdown()

@@ -344,6 +344,16 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
+    from gpl_dist.suite_rl import sample_complexity_section
+
+    rl_md, rl_png = sample_complexity_section(suite_out, out)
+    if rl_md:
+        parts += ["## Sample complexity: RL per task against GPL and GPR (the paper's figure)", rl_md]
+        html_parts += ["<h2>Sample complexity</h2>", _md_table_html(rl_md)]
+    if rl_png is not None:
+        parts.append(f"![sample complexity]({rl_png.name})")
+        data = base64.b64encode(rl_png.read_bytes()).decode()
+        html_parts.append(f'<img alt="sample complexity" src="data:image/png;base64,{data}">')
     effort = effort_markdown(results)
     settings = evaluations_markdown(results)
     prov = provenance_markdown(results, suite_out)

@@ -23,6 +23,11 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
     under ``out_dir/log`` and GIFs under ``out_dir/gifs``; returns the log file's path."""
     import sys
 
+    if read_line is input:
+        try:
+            import readline  # noqa: F401 - arrow keys and history for input()
+        except ImportError:  # not on every platform
+            pass
     stream = out or sys.stdout
 
     def say(text: str = "") -> None:

@@ -1,0 +1,317 @@
+"""The paper's sample-complexity comparison: RL per test task (``learner.rl``) against GPL and GPR,
+which solve a new task within a handful of attempts.
+
+A suite file's ``rl`` section names the test tasks of each domain (the same for every method),
+the seeds, the budget of trajectories per task, the instruction-only entry each domain's
+``rl-finetune`` starts from, and the entries (GPL, GPR) drawn as points. ``gpl-dist suite rl``
+runs every (method, domain, task, seed) not yet done, one after another or as Ray tasks
+(``gpl_dist.suite_ray.run_rl_on_ray``), and writes each result as it finishes:
+
+- ``OUT/rl/<method>/<domain>/task<t>-seed<s>.json``: an ``RLCurve`` (every trajectory's completion);
+- ``OUT/rl/attempts/<entry>-seed<s>.json``: each RL task's completion after attempts 1..6 of the
+  entry's trained policy (its training seed 0), corrected by the run's oracle with evaluation seed ``s``.
+
+A killed run loses only the jobs in flight; running it again does the rest. The report
+(``gpl_dist.suite_report``) draws the figure from these files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from gpl_dist.config import ConfigError
+
+#: Attempts drawn for GPL and GPR (the paper's figure: completion after k attempts at k trajectories).
+ATTEMPTS = 6
+
+
+@dataclass(frozen=True)
+class RLPlan:
+    """A suite's ``rl`` section."""
+
+    tasks: Mapping[str, tuple[int, ...]]
+    """Domain -> the test tasks every method learns (at least 20 each for the paper's figure)."""
+    seeds: tuple[int, ...]
+    """Seeds of every RL job and of the GPL/GPR rollouts."""
+    trajectories: int
+    """Training trajectories per RL job."""
+    pretrained: Mapping[str, str]
+    """Domain -> the suite entry (an instruction-only model) whose seed-0 run ``rl-finetune`` starts from."""
+    attempts_from: Mapping[str, tuple[str, ...]]
+    """Domain -> the suite entries (GPL, GPR) drawn as points at 1..6 trajectories."""
+    ppo: Mapping[str, Any]
+    """``learner.rl.PPOSettings`` fields that differ from their defaults."""
+
+
+@dataclass(frozen=True)
+class AttemptsJob:
+    """Completion of one trained entry's attempts on the RL tasks of its domain."""
+
+    entry: str
+    domain: str
+    seed: int
+
+    @property
+    def key(self) -> str:
+        return f"attempts/{self.entry}-seed{self.seed}"
+
+
+def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
+    """The ``rl`` section, checked: unknown keys, bad tasks, unknown entries or PPO settings fail in one line."""
+    from gpl_dist.domains import get_domain
+    from learner.rl import PPOSettings
+
+    def expect(ok: bool, key: str, message: str) -> None:
+        if not ok:
+            raise ConfigError(f"{where}.{key}: {message}")
+
+    expect(isinstance(raw, dict), "", "expected a mapping")
+    allowed = {"tasks", "seeds", "trajectories", "pretrained", "attempts_from", "ppo"}
+    unknown = sorted(set(raw) - allowed)
+    expect(not unknown, unknown[0] if unknown else "", f"unknown key (known: {', '.join(sorted(allowed))})")
+    missing = sorted({"tasks", "seeds", "trajectories"} - set(raw))
+    expect(not missing, missing[0] if missing else "", "missing")
+    expect(isinstance(raw["tasks"], dict) and bool(raw["tasks"]), "tasks", "expected domain: [task ids]")
+    tasks = {}
+    for domain, ids in raw["tasks"].items():
+        spec = get_domain(domain)
+        ok = isinstance(ids, list) and ids and all(isinstance(t, int) and not isinstance(t, bool) for t in ids)
+        expect(bool(ok), f"tasks.{domain}", "expected a list of task ids")
+        expect(all(0 <= t < spec.num_tasks for t in ids) and len(set(ids)) == len(ids), f"tasks.{domain}",
+               f"task ids must be distinct and in 0..{spec.num_tasks - 1}")
+        tasks[domain] = tuple(ids)
+    seeds = raw["seeds"]
+    expect(isinstance(seeds, list) and bool(seeds) and all(isinstance(s, int) and s >= 0 for s in seeds), "seeds",
+           "expected a list of seeds >= 0")
+    expect(isinstance(raw["trajectories"], int) and raw["trajectories"] >= 1, "trajectories", "expected an int >= 1")
+    pretrained = raw.get("pretrained") or {}
+    attempts_from = {d: tuple(v) for d, v in (raw.get("attempts_from") or {}).items()}
+    for domain, name in [*pretrained.items(), *((d, n) for d, ns in attempts_from.items() for n in ns)]:
+        expect(domain in tasks, f"{domain}", "names a domain without tasks")
+        expect(name in entry_names, f"{domain}", f"no entry '{name}'")
+    ppo = raw.get("ppo") or {}
+    fields = {f.name: f.type for f in dataclasses.fields(PPOSettings)}
+    for key, value in ppo.items():
+        expect(key in fields, f"ppo.{key}", f"unknown PPO setting (known: {', '.join(fields)})")
+        expect(isinstance(value, (int, float)) and not isinstance(value, bool), f"ppo.{key}", "expected a number")
+    return RLPlan(tasks, tuple(seeds), raw["trajectories"], dict(pretrained), attempts_from, dict(ppo))
+
+
+def rl_jobs(plan: RLPlan, methods: tuple[str, ...] | None = None) -> list:
+    """Every RL job of ``plan``: methods x domains x tasks x seeds (``rl-finetune`` only where a
+    domain names its pretrained entry)."""
+    from learner.rl import RL_METHODS, RLJob
+
+    jobs = []
+    for method in methods or RL_METHODS:
+        for domain, tasks in plan.tasks.items():
+            if method == "rl-finetune" and domain not in plan.pretrained:
+                continue
+            for seed in plan.seeds:
+                jobs += [RLJob(method, domain, t, seed, plan.trajectories, plan.pretrained.get(domain, "")
+                               if method == "rl-finetune" else "") for t in tasks]
+    return jobs
+
+
+def attempts_jobs(plan: RLPlan) -> list[AttemptsJob]:
+    """Every (entry, seed) drawn as points."""
+    return [AttemptsJob(entry, domain, seed) for domain, entries in plan.attempts_from.items()
+            for entry in entries for seed in plan.seeds]
+
+
+def result_path(out: str | Path, key: str) -> Path:
+    """Where a job's result lives: ``OUT/rl/<key>.json``."""
+    return Path(out) / "rl" / f"{key}.json"
+
+
+def write_result(out: str | Path, key: str, payload: dict) -> Path:
+    """Write a job's result atomically (a killed writer leaves no half file)."""
+    path = result_path(out, key)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(payload) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def trained_run_dir(out: str | Path, entry: str) -> Path:
+    """The seed-0 run of a suite entry, which must have finished training."""
+    from learner.checkpoint import LATEST
+
+    run_dir = Path(out) / entry / "seed0"
+    if not (run_dir / "checkpoints" / LATEST).is_file():
+        raise ConfigError(f"{run_dir} has no trained policy yet: run 'gpl-dist suite run ... --only {entry} --seeds 0' first")
+    return run_dir
+
+
+def pretrained_weights(out: str | Path, entry: str) -> tuple[dict, bool]:
+    """The numpy weights of an instruction-only entry's trained policy and its ``policy_batchnorm``."""
+    from gpl_dist.models.gpl import state_dict_to_numpy
+    from learner.evaluate import load_trained_policy
+
+    cfg, model, _ = load_trained_policy(trained_run_dir(out, entry))
+    if cfg.model.variant != "instruction_only":
+        raise ConfigError(f"rl-finetune starts from an instruction-only policy; entry '{entry}' is {cfg.model.variant}")
+    return state_dict_to_numpy(model), cfg.model.policy_batchnorm
+
+
+def run_attempts_job(job: AttemptsJob, plan: RLPlan, out: str | Path) -> dict:
+    """Each RL task's completion after attempts 1..``ATTEMPTS`` of the entry's policy (meta-test)."""
+    from learner.evaluate import load_trained_policy, meta_test_rollout
+    from workers.rollout import completion_by_attempt
+
+    cfg, model, _ = load_trained_policy(trained_run_dir(out, job.entry))
+    model.eval()
+    tasks = plan.tasks[job.domain]
+    attempts = meta_test_rollout(cfg, model).run(tasks, ATTEMPTS - 1, job.seed, split="rl").attempts
+    per_task = [completion_by_attempt([a for a in attempts if a.task_id == t], ATTEMPTS).tolist() for t in tasks]
+    return {"entry": job.entry, "domain": job.domain, "seed": job.seed, "variant": cfg.model.variant,
+            "tasks": list(tasks), "completion": per_task}
+
+
+def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, serial: bool = False,
+                domains: tuple[str, ...] = (), log: Callable[[str], None] = print) -> int:
+    """Run every job of ``plan`` whose result is not written yet; returns how many ran.
+
+    The GPL/GPR points first (seconds each), then the RL jobs: one after another with
+    ``serial``, else each a Ray task (local Ray, or the cluster at ``address``).
+    """
+    from learner.rl import PPOSettings, run_rl_job
+
+    settings = PPOSettings(**plan.ppo)
+    keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
+    todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
+    for job in todo_attempts:
+        write_result(out, job.key, run_attempts_job(job, plan, out))
+        log(f"[rl] {job.key} written")
+    jobs = [j for j in rl_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
+    weights = {d: pretrained_weights(out, plan.pretrained[d]) for d in {j.domain for j in jobs if j.method == "rl-finetune"}}
+    log(f"[rl] {len(jobs)} RL job(s) to run ({len(rl_jobs(plan)) - len(jobs)} already done)")
+
+    def finished(job, curve) -> None:
+        write_result(out, job.key, curve.to_json())
+        tail = curve.completion[-max(1, len(curve.completion) // 10):]
+        log(f"[rl] {job.key}: {len(curve.completion)} trajectories in {curve.seconds:.0f}s, "
+            f"completion over the last tenth {sum(tail) / len(tail):.3f}")
+
+    if serial:
+        for job in jobs:
+            w, bn = weights.get(job.domain, (None, False)) if job.method == "rl-finetune" else (None, False)
+            finished(job, run_rl_job(job, settings, w, bn))
+    elif jobs:
+        from gpl_dist.suite_ray import run_rl_on_ray
+
+        run_rl_on_ray(jobs, settings, weights, address, finished, log)
+    return len(todo_attempts) + len(jobs)
+
+
+def load_results(out: str | Path) -> tuple[list, list[dict]]:
+    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl``."""
+    from learner.rl import RLCurve
+
+    root = Path(out) / "rl"
+    curves, attempts = [], []
+    for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
+        data = json.loads(path.read_text())
+        if path.parent.name == "attempts":
+            attempts.append(data)
+        else:
+            curves.append(RLCurve.from_json(data))
+    return curves, attempts
+
+
+def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[str, Path | None]:
+    """The report's sample-complexity section (Markdown) and its figure, from ``OUT/rl``; an
+    empty text when nothing has run."""
+    import numpy as np
+
+    from learner.rl import log_points, summarize
+
+    curves, attempts = load_results(suite_out)
+    if not curves and not attempts:
+        return "", None
+    domains = sorted({c.job.domain for c in curves} | {a["domain"] for a in attempts})
+    lines = ["Completion on each test task against the trajectories spent on it: PPO (stable-baselines3) per task from "
+             "scratch and fine-tuned from the DAgger-trained instruction-only policy, each training trajectory's final "
+             "completion (mean over the last tenth of the trajectories up to each point); GPL and GPR after k attempts "
+             "(k - 1 corrections) at k trajectories. Median over tasks, interquartile range in brackets. Made by "
+             f"`gpl-dist suite rl configs/suites/paper.yaml --out {suite_out}`.", "",
+             "| domain | method | tasks x seeds | after 1 | 3 | 6 | 10 | 100 | 1000 | last "
+             "| trajectories to reach GPL after 5 corrections |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    fig_rows: dict[str, dict[str, tuple]] = {}
+    for domain in domains:
+        gpl_target = None
+        rows: dict[str, tuple] = {}
+        for entry in sorted({a["entry"] for a in attempts if a["domain"] == domain}):
+            per = np.mean([np.array(a["completion"]) for a in attempts if a["entry"] == entry], axis=0)  # tasks x attempts
+            med, q25, q75 = np.median(per, 0), np.percentile(per, 25, 0), np.percentile(per, 75, 0)
+            ks = tuple(range(1, per.shape[1] + 1))
+            rows[entry] = (ks, med, q25, q75, "points")
+            variant = next(a["variant"] for a in attempts if a["entry"] == entry)
+            if variant == "gpl":
+                gpl_target = float(med[-1])
+            cells = [_q(med, q25, q75, k - 1) if k <= len(ks) else "" for k in (1, 3, 6)]
+            seeds = len({a["seed"] for a in attempts if a["entry"] == entry})
+            lines.append(f"| {domain} | {entry} ({variant}) | {per.shape[0]} x {seeds} | {' | '.join(cells)} | | | | | |")
+        for method in sorted({c.job.method for c in curves if c.job.domain == domain}):
+            mine = [c for c in curves if c.job.domain == domain and c.job.method == method]
+            budget = min(len(c.completion) for c in mine)
+            points = log_points(budget)
+            s = summarize(mine, points)
+            rows[method] = (points, np.array(s.median), np.array(s.q25), np.array(s.q75), "curve")
+            at = {p: i for i, p in enumerate(points)}
+            cells = [_q(s.median, s.q25, s.q75, at[p]) if p in at else "" for p in (1, 3, 6, 10, 100, 1000)]
+            reach = "" if gpl_target is None else _first_reach(points, s.median, gpl_target, budget)
+            lines.append(f"| {domain} | {method} | {len(mine)} | {' | '.join(cells)} | "
+                         f"{_q(s.median, s.q25, s.q75, len(points) - 1)} | {reach} |")
+        fig_rows[domain] = rows
+    seconds = sum(c.seconds for c in curves)
+    lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "
+              "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections."]
+    png = Path(out) / "sample-complexity.png"
+    _plot(fig_rows, png)
+    return "\n".join(lines), png
+
+
+def _q(med, q25, q75, i: int) -> str:
+    return f"{med[i]:.2f} [{q25[i]:.2f}, {q75[i]:.2f}]"
+
+
+def _first_reach(points, median, target: float, budget: int) -> str:
+    for p, m in zip(points, median):
+        if m >= target:
+            return f"{p} (GPL: {target:.2f})"
+    return f"not within {budget} (GPL: {target:.2f})"
+
+
+def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(fig_rows), figsize=(5.5 * len(fig_rows), 3.8), dpi=110, squeeze=False)
+    for ax, (domain, rows) in zip(axes[0], fig_rows.items()):
+        for name, (xs, med, q25, q75, kind) in rows.items():
+            if kind == "curve":
+                (line,) = ax.plot(xs, med, label=name)
+                ax.fill_between(xs, q25, q75, alpha=0.2, color=line.get_color())
+            else:
+                ax.errorbar(xs, med, yerr=[med - q25, q75 - med], marker="o", capsize=3, label=name)
+        ax.set_xscale("log")
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel("trajectories on the task")
+        ax.set_ylabel("completion (median over tasks)")
+        ax.set_title(domain)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png)
+    plt.close(fig)

@@ -1,0 +1,288 @@
+"""Reinforcement learning on one task with stable-baselines3's PPO: the paper's sample-complexity
+baselines (its figure of completion against trajectories per task).
+
+Two methods, one network: the instruction-only GPL network of the domain (its state encoder, the
+task's instruction encoded once as a learnable vector, and its policy MLP) is SB3's features
+extractor (``TaskFeatures``); SB3 adds the action and value layers on top.
+
+- ``rl-scratch``: the network freshly initialised (``seed``; SB3's orthogonal initialisation), PPO from there;
+- ``rl-finetune``: the network and its final action layer loaded from an instruction-only policy
+  meta-trained by DAgger (the suite's entry), so PPO starts from exactly that policy.
+
+Both see the env's observation (multi-room: the 7x7 categorical window through the GPL grid
+encoder, a small CNN) and its dense reward (the paper's: multi-room -0.01 x distance to the next
+subgoal and +100 per newly completed subgoal; relocation -(gripper-to-block + 5 x block-to-target)).
+Every training trajectory's final completion is recorded, in order (``RLCurve``), until
+``trajectories`` have been run. Everything is a function of the job's seed (SB3's, the env's resets
+and torch's); one torch thread per job.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from torch import nn
+
+from gpl_dist.domains import get_domain
+from gpl_dist.errors import UsageError
+from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model
+from gpl_dist.roles import DomainSpec
+from gpl_dist.seeding import derive_seed
+
+#: The RL methods: PPO from a fresh network, and PPO from a DAgger-pretrained instruction-only one.
+RL_METHODS = ("rl-scratch", "rl-finetune")
+
+
+@dataclass(frozen=True)
+class PPOSettings:
+    """stable-baselines3 PPO's settings for every RL job (its defaults unless said)."""
+
+    learning_rate: float = 3e-4
+    """Adam learning rate."""
+    n_steps: int = 2048
+    """Env steps per environment between updates."""
+    batch_size: int = 64
+    """Minibatch size of an update."""
+    n_epochs: int = 10
+    """Passes over each rollout."""
+    gamma: float = 0.99
+    """Discount factor."""
+    gae_lambda: float = 0.95
+    """GAE's lambda."""
+    clip_range: float = 0.2
+    """PPO's ratio clip."""
+    ent_coef: float = 0.0
+    """Entropy bonus."""
+    value_hidden: int = 64
+    """Width of the value head's hidden layer (the policy head reads the network's features directly)."""
+
+
+@dataclass(frozen=True)
+class RLJob:
+    """One PPO run: a method on one task with one seed and a budget of trajectories.
+
+    Attributes:
+        method: one of ``RL_METHODS``.
+        domain: domain name.
+        task_id: the task (a test task: the policy has never seen it).
+        seed: seeds SB3, the network's initialisation and the env's resets.
+        trajectories: episodes to train for (each ``steps_per_attempt`` steps).
+        pretrained: for ``rl-finetune``, the suite entry whose policy is loaded (recorded only).
+    """
+
+    method: str
+    domain: str
+    task_id: int
+    seed: int
+    trajectories: int
+    pretrained: str = ""
+
+    @property
+    def key(self) -> str:
+        """File stem of the job's result: ``<method>/<domain>/task<t>-seed<s>``."""
+        return f"{self.method}/{self.domain}/task{self.task_id}-seed{self.seed}"
+
+
+@dataclass(frozen=True)
+class RLCurve:
+    """What one RL job measured.
+
+    Attributes:
+        job: the job.
+        completion: float ``(trajectories,)`` the final completion of each training trajectory, in order.
+        success: bool ``(trajectories,)`` whether each solved the task.
+        env_steps: env steps taken (a whole number of PPO rollouts, so a little more than needed).
+        seconds: wall time.
+    """
+
+    job: RLJob
+    completion: tuple[float, ...]
+    success: tuple[bool, ...]
+    env_steps: int
+    seconds: float
+
+    def to_json(self) -> dict:
+        """The curve as JSON (``from_json`` reads it back)."""
+        return {"job": self.job.__dict__, "completion": list(self.completion), "success": list(self.success),
+                "env_steps": self.env_steps, "seconds": self.seconds}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "RLCurve":
+        return cls(RLJob(**data["job"]), tuple(float(x) for x in data["completion"]),
+                   tuple(bool(x) for x in data["success"]), int(data["env_steps"]), float(data["seconds"]))
+
+
+class TaskFeatures(nn.Module):
+    """SB3 features extractor: the instruction-only GPL network's trunk for one task.
+
+    ``features = policy_mlp(cat(state_encoder(obs), z))`` with ``z`` the task's instruction
+    encoding (a learnable vector initialised from the network's instruction encoder), i.e. the GPL
+    head without its final linear layer, whose weights ``attach`` copies into SB3's action layer.
+    """
+
+    def __init__(self, observation_space: gymnasium.spaces.Box, network: GPLPolicy, instruction_ids: torch.Tensor,
+                 obs_shape: tuple[int, ...]):
+        super().__init__()
+        self.state = network.state
+        self.trunk = network.head[0]
+        with torch.no_grad():
+            z = network.encode_conditioning(_instruction_only(instruction_ids))
+        self.z = nn.Parameter(z[0].clone())
+        self.obs_shape = tuple(obs_shape)
+        # SB3 hands channels-last images over channels-first (VecTransposeImage): undo that
+        self.channels_first = tuple(observation_space.shape) != self.obs_shape
+        self.features_dim = int([m for m in self.trunk.modules() if isinstance(m, nn.Linear)][-1].out_features)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        if self.channels_first:
+            obs = obs.permute(0, 2, 3, 1)
+        if len(self.obs_shape) == 3:
+            obs = obs.round().to(torch.uint8)  # categorical codes, as the grid encoder reads them
+        state = self.state(obs)
+        return self.trunk(torch.cat([state, self.z.expand(state.shape[0], -1)], dim=1))
+
+
+def _instruction_only(instruction_ids: torch.Tensor) -> Conditioning:
+    empty = torch.zeros((0,), dtype=torch.long)
+    return Conditioning(instruction_ids=instruction_ids.reshape(1, -1), trajectories=empty,
+                        correction_ids=empty.reshape(0, instruction_ids.numel()),
+                        slots=torch.zeros((1, 0), dtype=torch.long))
+
+
+def _features_class(observation_space, **kwargs):
+    """SB3 wants a ``BaseFeaturesExtractor``: ``TaskFeatures`` under that base class."""
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+    class _Extractor(BaseFeaturesExtractor):
+        def __init__(self, observation_space, network, instruction_ids, obs_shape):
+            inner = TaskFeatures(observation_space, network, instruction_ids, obs_shape)
+            super().__init__(observation_space, inner.features_dim)
+            self.inner = inner
+
+        def forward(self, obs: torch.Tensor) -> torch.Tensor:
+            return self.inner(obs)
+
+    return _Extractor
+
+
+class CompletionRecorder(gymnasium.Wrapper):
+    """Records each episode's final ``info["completion"]`` and ``info["success"]``."""
+
+    def __init__(self, env: gymnasium.Env):
+        super().__init__(env)
+        self.completion: list[float] = []
+        self.success: list[bool] = []
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if terminated or truncated:
+            self.completion.append(float(info.get("completion", 0.0)))
+            self.success.append(bool(info.get("success", False)))
+        return obs, reward, terminated, truncated, info
+
+
+def task_network(domain: DomainSpec, weights: dict[str, np.ndarray] | None, seed: int,
+                 policy_batchnorm: bool = False) -> GPLPolicy:
+    """The instruction-only GPL network: fresh (``seed``) or with ``weights`` (a pretrained policy's)."""
+    network = build_model(domain, "instruction_only", seed=seed, policy_batchnorm=policy_batchnorm)
+    if weights is not None:
+        network.load_state_dict({k: torch.as_tensor(np.asarray(v)) for k, v in weights.items()})
+    assert isinstance(network, GPLPolicy)
+    return network
+
+
+def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
+             policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder, GPLPolicy]:
+    """SB3's PPO on ``job``'s task, its env (recording each episode's completion) and the GPL
+    network inside it; ``weights`` (an instruction-only policy's, as numpy) for ``rl-finetune``."""
+    from stable_baselines3 import PPO
+
+    if job.method not in RL_METHODS:
+        raise UsageError(f"unknown RL method '{job.method}' (known: {', '.join(RL_METHODS)})")
+    if (job.method == "rl-finetune") != (weights is not None):
+        raise UsageError(f"{job.method} needs {'a pretrained policy' if weights is None else 'no weights'}")
+    domain = get_domain(job.domain)
+    if not 0 <= job.task_id < domain.num_tasks or job.trajectories < 1:
+        raise UsageError(f"RL job {job.key}: task outside 0..{domain.num_tasks - 1} or no trajectories")
+    seed = derive_seed(job.seed, job.task_id, 0x5B3) % 2**32  # SB3 seeds numpy's legacy generator too
+    torch.manual_seed(seed)
+    network = task_network(domain, weights, seed, policy_batchnorm)
+    env = CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id))
+    instruction_ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction))  # type: ignore[attr-defined]
+    policy_kwargs: dict[str, Any] = dict(
+        features_extractor_class=_features_class(env.observation_space),
+        features_extractor_kwargs=dict(network=network, instruction_ids=instruction_ids, obs_shape=domain.obs_shape),
+        net_arch=dict(pi=[], vf=[settings.value_hidden]), normalize_images=False,
+        # SB3 re-initialises every layer orthogonally by default: right from scratch, wrong for pretrained weights
+        ortho_init=weights is None)
+    model = PPO("MlpPolicy", env, learning_rate=settings.learning_rate,
+                n_steps=settings.n_steps, batch_size=settings.batch_size, n_epochs=settings.n_epochs, gamma=settings.gamma,
+                gae_lambda=settings.gae_lambda, clip_range=settings.clip_range, ent_coef=settings.ent_coef,
+                policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0)
+    if weights is not None:
+        last: nn.Linear = network.head[1]  # type: ignore[assignment]
+        action_net: nn.Linear = model.policy.action_net  # type: ignore[assignment]
+        with torch.no_grad():  # start from exactly the pretrained policy: its last layer is SB3's action layer
+            action_net.weight.copy_(last.weight)
+            action_net.bias.copy_(last.bias)
+    return model, env, network
+
+
+def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
+               policy_batchnorm: bool = False) -> RLCurve:
+    """PPO on ``job``'s task until ``job.trajectories`` episodes have run (``make_ppo``)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    torch.set_num_threads(1)
+    model, env, _ = make_ppo(job, settings, weights, policy_batchnorm)
+
+    class _StopAtBudget(BaseCallback):
+        def _on_step(self) -> bool:
+            return len(env.completion) < job.trajectories
+
+    start = time.perf_counter()
+    steps = get_domain(job.domain).steps_per_attempt
+    model.learn(total_timesteps=job.trajectories * steps, callback=_StopAtBudget())
+    return RLCurve(job, tuple(env.completion[: job.trajectories]), tuple(env.success[: job.trajectories]),
+                   int(model.num_timesteps), time.perf_counter() - start)
+
+
+@dataclass(frozen=True)
+class CurveSummary:
+    """Completion against trajectories over tasks: median and interquartile range at ``points``."""
+
+    points: tuple[int, ...]
+    median: tuple[float, ...]
+    q25: tuple[float, ...]
+    q75: tuple[float, ...]
+    num_tasks: int
+    extra: dict = field(default_factory=dict)
+
+
+def smoothed(completion: tuple[float, ...] | list[float], points: tuple[int, ...], window: float = 0.1) -> list[float]:
+    """Completion at each of ``points`` trajectories: the mean over the trajectories in
+    ``(p - window * p, p]`` (at least the p-th alone), a learning curve read at a log scale."""
+    c = np.asarray(completion, dtype=np.float64)
+    out = []
+    for p in points:
+        lo = max(0, int(np.floor(p * (1 - window))))
+        out.append(float(c[lo:p].mean()) if p <= len(c) and p > lo else float("nan"))
+    return out
+
+
+def summarize(curves: list[RLCurve], points: tuple[int, ...]) -> CurveSummary:
+    """Median and interquartile range over the tasks of ``curves`` (one seed's, or all)."""
+    table = np.array([smoothed(c.completion, points) for c in curves])
+    return CurveSummary(points, tuple(np.nanmedian(table, 0)), tuple(np.nanpercentile(table, 25, 0)),
+                        tuple(np.nanpercentile(table, 75, 0)), len(curves))
+
+
+def log_points(budget: int, per_decade: int = 8) -> tuple[int, ...]:
+    """About ``per_decade`` trajectory counts per power of ten from 1 to ``budget``."""
+    raw = np.unique(np.round(np.logspace(0, np.log10(budget), int(per_decade * np.log10(max(budget, 10))) + 1)))
+    return tuple(int(x) for x in raw if 1 <= x <= budget)

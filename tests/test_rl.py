@@ -1,0 +1,111 @@
+"""RL per test task on stable-baselines3's PPO: the same code path on both domains, fine-tuning
+from a DAgger policy, and the suite's rl section end to end (serial and on Ray)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from test_suite import entry, write_suite
+
+from gpl_dist.cli import main
+from gpl_dist.config import ConfigError
+from gpl_dist.models.gpl import state_dict_to_numpy
+from gpl_dist.suite import load_suite, run_suite
+from gpl_dist.suite_rl import load_results, rl_jobs, run_rl_plan
+from learner.evaluate import load_trained_policy
+from learner.rl import PPOSettings, RLJob, _instruction_only, log_points, make_ppo, run_rl_job, smoothed
+
+SMALL = PPOSettings(n_steps=128, batch_size=64, n_epochs=1)
+
+
+@pytest.mark.parametrize("domain, task", [("multiroom", 69), ("relocation", 11)])
+def test_ppo_records_every_trajectorys_completion_reproducibly(domain, task):
+    job = RLJob("rl-scratch", domain, task, 0, 6)
+    a, b = run_rl_job(job, SMALL), run_rl_job(job, SMALL)
+    assert len(a.completion) == 6 == len(a.success)
+    assert all(0.0 <= c <= 1.0 for c in a.completion)
+    steps = {"multiroom": 100, "relocation": 350}[domain]
+    assert a.env_steps >= 6 * steps and a.env_steps < 6 * steps + SMALL.n_steps
+    assert a.completion == b.completion  # seeded: the same job gives the same curve
+    assert RLJob("rl-scratch", domain, task, 1, 6) != job
+
+
+@pytest.fixture(scope="module")
+def instruction_run(tmp_path_factory):
+    run = tmp_path_factory.mktemp("rl") / "instr"
+    assert main(["train", "--config", "configs/multiroom-smoke.yaml", "--serial", "--no-progress", "--run-dir", str(run),
+                 "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4",
+                 "--set", "training.num_epochs_per_round=1", "--set", "model.variant=instruction_only"]) == 0
+    return run
+
+
+def test_finetuning_starts_from_exactly_the_pretrained_policy(instruction_run):
+    cfg, network, _ = load_trained_policy(instruction_run)
+    network.eval()
+    job = RLJob("rl-finetune", "multiroom", 69, 0, 4, pretrained="instr")
+    model, env, inner = make_ppo(job, SMALL, state_dict_to_numpy(network), cfg.model.policy_batchnorm)
+    obs = model.env.reset()  # as SB3 sees it (channels first)
+    obs_t, _ = model.policy.obs_to_tensor(obs)
+    model.policy.set_training_mode(False)
+    with torch.no_grad():
+        sb3 = model.policy.get_distribution(obs_t).distribution.logits
+        raw = torch.from_numpy(np.transpose(obs, (0, 2, 3, 1)))
+        ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction)).reshape(1, -1)
+        ours = torch.log_softmax(network.action_logits(raw, network.encode_conditioning(_instruction_only(ids))), 1)
+    assert torch.allclose(sb3, ours, atol=1e-5)
+    with pytest.raises(Exception, match="needs a pretrained policy"):
+        make_ppo(job, SMALL, None)
+
+
+def _suite(tmp_path, **rl_overrides):
+    spec = {"instr": entry(**{"training.num_rounds": 1, "model.variant": "instruction_only"}),
+            "gpl": entry(**{"training.num_rounds": 1})}
+    path = write_suite(tmp_path / "suite.yaml", spec)
+    raw = json.loads(path.read_text())
+    raw["rl"] = {"tasks": {"multiroom": [69, 180]}, "seeds": [0], "trajectories": 3,
+                 "pretrained": {"multiroom": "instr"}, "attempts_from": {"multiroom": ["gpl"]},
+                 "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 1}, **rl_overrides}
+    path.write_text(json.dumps(raw))
+    return path
+
+
+def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, capsys, ray_cluster):
+    path = _suite(tmp_path)
+    suite = load_suite(path)
+    out = tmp_path / "out"
+    with pytest.raises(ConfigError, match="no trained policy yet"):
+        run_rl_plan(suite.rl, out, serial=True, log=lambda s: None)
+    run_suite(suite, out, serial=True, progress=False)
+    address = ray_cluster.get_runtime_context().gcs_address
+    assert run_rl_plan(suite.rl, out, address=address, log=lambda s: None) == 1 + 4  # GPL's points, 2 methods x 2 tasks
+    curves, attempts = load_results(out)
+    assert sorted(c.job.key for c in curves) == sorted(j.key for j in rl_jobs(suite.rl)) and len(curves) == 4
+    assert all(len(c.completion) == 3 for c in curves)
+    assert attempts[0]["tasks"] == [69, 180] and np.array(attempts[0]["completion"]).shape == (2, 6)
+    assert run_rl_plan(suite.rl, out, serial=True, log=lambda s: None) == 0  # done: nothing runs again
+    (out / "rl" / "rl-scratch" / "multiroom" / "task69-seed0.json").unlink()  # as if killed before writing it
+    assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
+    assert "1 RL job(s) ran" in capsys.readouterr().out
+    assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md
+    assert (tmp_path / "report" / "sample-complexity.png").stat().st_size > 5000
+
+
+@pytest.mark.parametrize("change, needle", [
+    ({"tasks": {"multiroom": [99999]}}, "task ids must be distinct and in"),
+    ({"pretrained": {"multiroom": "nope"}}, "no entry 'nope'"),
+    ({"ppo": {"n_step": 5}}, "unknown PPO setting"),
+    ({"colour": 1}, "unknown key"),
+    ({"trajectories": 0}, "expected an int >= 1"),
+])
+def test_a_bad_rl_section_fails_in_one_line(tmp_path, change, needle):
+    with pytest.raises(ConfigError, match=needle):
+        load_suite(_suite(tmp_path, **change))
+
+
+def test_curves_are_read_at_log_spaced_points():
+    assert log_points(2000)[:4] == (1, 2, 3, 4) and log_points(2000)[-1] == 2000
+    c = [0.0] * 9 + [1.0]
+    assert smoothed(c, (1, 10)) == [0.0, 1.0] and np.isnan(smoothed(c, (11,))[0])
