@@ -1,4 +1,5 @@
-"""What would the authors' per-task PPO experts cost here? Train a few with their settings and time them.
+"""What would the authors' per-task PPO experts cost here? Train a few with their settings (on
+stable-baselines3's PPO) and time them.
 
 The paper's relocation experts are one PPO policy per task (facts file, section 4): policy MLP
 28 -> 32 -> 32 -> 4, value MLP 28 -> 64 -> 64 -> 1, 20 parallel copies of the task, 7000 steps
@@ -25,77 +26,61 @@ import numpy as np
 import torch
 from torch import nn
 
-from gpl_dist.envs.relocation import NUM_TASKS, SUCCESS_RADIUS, make_env
-from gpl_dist.experts.relocation_training import sample_episodes
+from gpl_dist.envs.relocation import EPISODE_STEPS, NUM_TASKS
 from gpl_dist.splits import split_tasks
+from learner.rl import CompletionRecorder
 
 NUM_COPIES = 20
-GAMMA = 0.99
-CLIP = 0.2
-EPOCHS = 10
-MINIBATCH = 128
-ENTROPY_COEF = 0.001
 
 
-def mlp(sizes: tuple[int, ...]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for a, b in zip(sizes[:-1], sizes[1:]):
-        layers += [nn.Linear(a, b), nn.Tanh()]
-    return nn.Sequential(*layers[:-1])
-
-
-def discounted_returns(rewards: np.ndarray) -> np.ndarray:
-    """``(T, N)`` rewards -> Monte-Carlo returns, no bootstrap (episodes end at the time limit)."""
-    out = np.zeros_like(rewards)
-    running = np.zeros(rewards.shape[1], dtype=rewards.dtype)
-    for t in range(len(rewards) - 1, -1, -1):
-        running = rewards[t] + GAMMA * running
-        out[t] = running
-    return out
+def authors_settings(seed: int) -> dict:
+    """The authors' per-task PPO as stable-baselines3 arguments: one episode of each of 20 copies
+    per iteration, Monte-Carlo returns (GAE with lambda 1), their networks, one Adam at 1e-3, the
+    value loss at full weight and a small entropy bonus."""
+    return dict(n_steps=EPISODE_STEPS, batch_size=128, n_epochs=10, learning_rate=1e-3, gamma=0.99, gae_lambda=1.0,
+                clip_range=0.2, ent_coef=0.001, vf_coef=1.0, seed=seed, device="cpu", verbose=0,
+                policy_kwargs=dict(net_arch=dict(pi=[32, 32], vf=[64, 64]), activation_fn=nn.Tanh))
 
 
 def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0) -> dict:
-    """PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran."""
-    torch.manual_seed(seed)
-    policy, value = mlp((28, 32, 32, 4)), mlp((28, 64, 64, 1))
-    opt = torch.optim.Adam([*policy.parameters(), *value.parameters()], lr=1e-3)
-    envs = [make_env(task_id) for _ in range(NUM_COPIES)]
-    gen = torch.Generator().manual_seed(seed)
+    """SB3 PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran."""
+    import gymnasium
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    recorders: list[CompletionRecorder] = []
+
+    def make(k: int):
+        def build():
+            recorders.append(CompletionRecorder(gymnasium.make("gpl/Relocation-v0", task_id=task_id)))
+            return recorders[-1]
+        return build
+
+    env = DummyVecEnv([make(k) for k in range(NUM_COPIES)])
+    env.seed(seed)
+    model = PPO("MlpPolicy", env, **authors_settings(seed))
+    state = {"iterations": 0, "finished_at": None, "completion": 0.0}
+
+    class UntilAllFinish(BaseCallback):
+        def _on_step(self) -> bool:
+            return state["finished_at"] is None  # the next rollout's first step ends learn()
+
+        def _on_rollout_end(self) -> None:
+            it = state["iterations"]
+            state["iterations"] = it + 1
+            state["completion"] = float(np.mean([r.completion[-1] for r in recorders]))
+            if all(r.success[-1] for r in recorders):
+                state["finished_at"] = it
+            elif log_every and it % log_every == 0:
+                done = np.mean([r.success[-1] for r in recorders])
+                print(f"  task {task_id} iteration {it}: completion {state['completion']:.3f}, finished {done:.2f}",
+                      flush=True)
+
     start = time.perf_counter()
-    finished_at, completion = None, 0.0
-    it = 0
-    for it in range(max_iterations):
-        x_buf, act_buf, logp_buf, rew_buf = sample_episodes(
-            policy, envs, [seed + NUM_COPIES * it + k for k in range(NUM_COPIES)], gen)
-        finished = np.array([e.distance() < SUCCESS_RADIUS for e in envs])
-        completion = float(np.mean([e.completion() for e in envs]))
-        if finished.all():
-            finished_at = it
-            break
-        if log_every and it % log_every == 0:
-            print(f"  task {task_id} iteration {it}: completion {completion:.3f}, finished {finished.mean():.2f}", flush=True)
-        x = torch.from_numpy(x_buf[:-1].reshape(-1, 28))
-        acts = torch.from_numpy(act_buf.reshape(-1))
-        old_logp = torch.from_numpy(logp_buf.reshape(-1))
-        returns = torch.from_numpy(discounted_returns(rew_buf).reshape(-1))
-        with torch.no_grad():
-            adv = returns - value(x).squeeze(1)
-        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        for _ in range(EPOCHS):
-            perm = torch.randperm(len(acts), generator=gen)
-            for b in range(0, len(perm), MINIBATCH):
-                i = perm[b:b + MINIBATCH]
-                logp_all = torch.log_softmax(policy(x[i]), 1)
-                ratio = torch.exp(logp_all.gather(1, acts[i, None]).squeeze(1) - old_logp[i])
-                surrogate = torch.min(ratio * adv[i], ratio.clamp(1 - CLIP, 1 + CLIP) * adv[i])
-                entropy = -(logp_all.exp() * logp_all).sum(1)
-                loss = (-surrogate.mean() + nn.functional.mse_loss(value(x[i]).squeeze(1), returns[i])
-                        - ENTROPY_COEF * entropy.mean())
-                opt.zero_grad()
-                loss.backward()
-                opt.step()
-    return {"task": task_id, "iterations": it + 1, "finished_at": finished_at, "completion": completion,
-            "seconds": time.perf_counter() - start}
+    model.learn(total_timesteps=max_iterations * NUM_COPIES * EPISODE_STEPS, callback=UntilAllFinish())
+    return {"task": task_id, "iterations": state["iterations"], "finished_at": state["finished_at"],
+            "completion": state["completion"], "seconds": time.perf_counter() - start}
 
 
 def main(argv=None) -> None:

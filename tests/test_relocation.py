@@ -365,9 +365,9 @@ def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
     assert int(rounds[1][2].replace(",", "")) == 2 * int(rounds[0][2].replace(",", "")) == 2 * 2 * 350
 
 
-def test_ppo_expert_benchmark_returns_and_one_task():
-    """``research/relocation_ppo_expert.py``: Monte-Carlo returns are exact, and two PPO iterations
-    on one task run with the authors' settings and report the task's completion and timing."""
+def test_ppo_expert_benchmark_runs_the_authors_settings_on_sb3():
+    """``research/relocation_ppo_expert.py``: two iterations of stable-baselines3's PPO with the
+    authors' settings on one task report its completion and timing, the same for a seed."""
     import importlib.util
     from pathlib import Path
 
@@ -375,10 +375,8 @@ def test_ppo_expert_benchmark_returns_and_one_task():
     spec = importlib.util.spec_from_file_location("relocation_ppo_expert", path)
     ppo = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ppo)
-    rewards = np.array([[1.0, 0.0], [2.0, -1.0], [3.0, 0.0]], dtype=np.float32)
-    g = ppo.GAMMA
-    expected = np.array([[1 + g * 2 + g * g * 3, -g], [2 + g * 3, -1.0], [3.0, 0.0]], dtype=np.float32)
-    np.testing.assert_allclose(ppo.discounted_returns(rewards), expected, rtol=1e-6)
+    settings = ppo.authors_settings(3)
+    assert settings["gae_lambda"] == 1.0 and settings["policy_kwargs"]["net_arch"] == {"pi": [32, 32], "vf": [64, 64]}
     first = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
     again = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
     assert first["iterations"] == 2 and first["finished_at"] is None

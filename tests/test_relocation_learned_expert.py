@@ -118,7 +118,7 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
                  "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
-    assert lines[1].startswith("iteration 0:") and "KL 0.0000" in lines[1]  # critic warm-up: no policy step
+    assert lines[1].startswith("iteration 0:")  # the critic warm-up (no policy step: the test below checks)
     assert lines[2].startswith("iteration 1:") and "test completion" in lines[2]
     start = torch.load(init, weights_only=True)
     with np.load(out, allow_pickle=False) as raw:
@@ -126,3 +126,28 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
                                             *(f"w{i}" for i in range(4)), *(f"b{i}" for i in range(4))])
         np.testing.assert_array_equal(raw["norm_mean"], start["0.running_mean"].numpy())  # frozen statistics
         assert not np.array_equal(raw["w0"], start["1.weight"].numpy())  # iteration 1 moved the policy
+
+
+def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
+    """Step 2 runs stable-baselines3's PPO: its policy starts as step 1's exactly, the input
+    normalisation keeps step 1's statistics, the value layers alone train during the warm-up,
+    and the policy moves after it."""
+    from gpl_dist.experts import relocation_training as script
+    torch.manual_seed(0)
+    policy = script.build_policy(33, 32)
+    with torch.no_grad():
+        policy[0].running_mean.uniform_(-1, 1)
+    policy.eval()
+    settings = script.PPOSettings(iterations=2, envs=2, warmup=1, eval_every=100, test_tasks=1, minibatch=175)
+    model = script.sb3_ppo(policy, settings)
+    x = torch.randn(7, 33)
+    model.policy.set_training_mode(False)
+    with torch.no_grad():
+        assert torch.allclose(model.policy.get_distribution(x).distribution.logits, torch.log_softmax(policy(x), 1), atol=1e-5)
+    lines: list[str] = []
+    once = script.ppo_finetune(policy, script.PPOSettings(**{**settings.__dict__, "iterations": 1}), lines.append)
+    assert all(torch.equal(a, b) for a, b in zip(once.parameters(), policy.parameters()))  # warm-up: value layers only
+    tuned = script.ppo_finetune(policy, settings, lines.append)
+    assert any(not torch.equal(a, b) for a, b in zip(tuned.parameters(), policy.parameters()))
+    assert torch.equal(tuned[0].running_mean, policy[0].running_mean)
+    assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
