@@ -208,13 +208,23 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test") -> FastAPI:
 
 def serve(teacher: Teacher, out_dir: Path, host: str = "127.0.0.1", port: int = 8000, split: str = "test") -> None:
     """Serve the page until interrupted; warns when ``host`` is reachable from other machines."""
+    import socket
+
     import uvicorn
 
+    if not 1 <= port <= 65535:
+        raise TeachingError(f"--port must be in 1..65535, got {port}")
+    app = create_app(teacher, out_dir, split)  # an unknown split fails here, before anything listens
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+        try:  # a taken port fails in one line here rather than in uvicorn's log
+            probe.bind((host, port))
+        except OSError as err:
+            raise TeachingError(f"cannot listen on {host}:{port}: {err.strerror or err}") from None
     if not _is_loopback(host):
         print(f"warning: serving on {host}: anyone who can reach this machine can use the page and its log")
     print(f"teaching {teacher.run_dir} ({teacher.domain.name}, round {teacher.round_index}) at http://{host}:{port}/",
           flush=True)
-    uvicorn.run(create_app(teacher, out_dir, split), host=host, port=port, log_level="warning")
+    uvicorn.run(app, host=host, port=port, log_level="warning")
 
 
 def _is_loopback(host: str) -> bool:

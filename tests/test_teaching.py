@@ -284,3 +284,17 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
     finally:
         server.terminate()
         server.wait(timeout=30)
+
+
+def test_serve_refuses_a_bad_port_split_or_taken_port_in_one_line(run, capsys):
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen()
+    try:
+        for args, needle in ((["--port", "99999"], "1..65535"), (["--split", "nope"], "unknown split 'nope'"),
+                             (["--port", str(taken.getsockname()[1])], "cannot listen on 127.0.0.1")):
+            assert main(["serve", "--run-dir", str(run), *args]) == 2
+            err = capsys.readouterr().err.strip()
+            assert err.startswith("gpl-dist: error:") and needle in err and "\n" not in err, err
+    finally:
+        taken.close()
