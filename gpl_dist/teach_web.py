@@ -29,11 +29,13 @@ from pathlib import Path
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.trustedhost import TrustedHostMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, Response
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, StrictInt
 
 from gpl_dist.splits import split_tasks
 from gpl_dist.teaching import (
+    MAX_SEED,
     MAX_TEXT_CHARS,
     Teacher,
     TeachingEpisode,
@@ -53,9 +55,9 @@ _PAGE = Path(__file__).parent / "web" / "teach.html"
 class StartRequest(BaseModel):
     """Start an episode: ``task_id``, else a task of the split with ``instruction``, else a drawn one."""
 
-    task_id: int | None = None
+    task_id: StrictInt | None = None
     instruction: str | None = Field(default=None, max_length=MAX_FIELD_CHARS)
-    seed: int = Field(default=0, ge=0, le=2**31 - 1)
+    seed: StrictInt = Field(default=0, ge=0, le=MAX_SEED)
 
 
 class CorrectionRequest(BaseModel):
@@ -136,10 +138,13 @@ def _view(episode: TeachingEpisode) -> EpisodeView:
                        corrections_left=episode.corrections_left, attempts=attempts)
 
 
-def create_app(teacher: Teacher, out_dir: Path, split: str = "test") -> FastAPI:
-    """The web app teaching ``teacher``'s policy; logs under ``out_dir/log``."""
+def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str = "127.0.0.1") -> FastAPI:
+    """The web app teaching ``teacher``'s policy; logs under ``out_dir/log``. Served on a loopback
+    ``host``, it answers only requests addressed to a loopback name (no DNS rebinding)."""
     split_tasks(teacher.domain.name, split)  # an unknown split fails here, naming the known ones
     app = FastAPI(title="gpl-dist teach", docs_url=None, redoc_url=None, openapi_url=None)
+    if _is_loopback(host):
+        app.add_middleware(TrustedHostMiddleware, allowed_hosts=["127.0.0.1", "localhost", "[::1]"])
     episodes = Episodes()
     log_dir = out_dir / "log"
     domain = teacher.domain
@@ -195,8 +200,13 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test") -> FastAPI:
 
     @app.get("/api/episodes/{episode_id}/hint")
     def hint(episode_id: str) -> dict:
-        episode, _ = episodes.get(episode_id)
-        return {"hint": episode.hint()}
+        episode, lock = episodes.get(episode_id)
+        if not lock.acquire(blocking=False):  # a hint now would be logged against the attempt in flight
+            raise HTTPException(409, "this episode is making an attempt: ask for the hint after it")
+        try:
+            return {"hint": episode.hint()}
+        finally:
+            lock.release()
 
     @app.get("/api/episodes/{episode_id}/attempts/{index}.gif")
     def gif(episode_id: str, index: int) -> Response:
@@ -214,7 +224,7 @@ def serve(teacher: Teacher, out_dir: Path, host: str = "127.0.0.1", port: int = 
 
     if not 1 <= port <= 65535:
         raise TeachingError(f"--port must be in 1..65535, got {port}")
-    app = create_app(teacher, out_dir, split)  # an unknown split fails here, before anything listens
+    app = create_app(teacher, out_dir, split, host)  # an unknown split fails here, before anything listens
     with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
         try:  # a taken port fails in one line here rather than in uvicorn's log
             probe.bind((host, port))

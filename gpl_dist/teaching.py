@@ -88,20 +88,23 @@ def check_correction(domain: DomainSpec, text: str, what: str = "correction",
                      vocabulary: Vocabulary | None = None) -> CorrectionCheck:
     """``CorrectionCheck`` of ``text`` for a policy of ``domain`` that reads ``vocabulary`` (default
     the domain's; a model trained with paraphrases reads more); ``what`` names it in messages."""
-    text = (text if isinstance(text, str) else "")[: MAX_TEXT_CHARS * 50].strip()
-    words = tuple(split_words(text))
+    text = (text if isinstance(text, str) else "").strip()
     vocab = vocabulary or domain.vocabulary
+    phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
+    if len(text) > MAX_TEXT_CHARS:  # before any other work: a pasted book costs nothing
+        return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], (), (), (), None,
+                               f"the {what} is {len(text)} characters long; at most {MAX_TEXT_CHARS} are read")
+    words = tuple(split_words(text))
     ids = tuple(int(i) for i in vocab.encode(text) if i != vocab.pad_id)
     unknown = tuple(dict.fromkeys(w for w in words if vocab.token_id(w) == vocab.unk_id))
-    phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
     suggestion = closest_phrasing(words, phrasings) if words else None
     if suggestion is not None and split_words(suggestion) == list(words):
         suggestion = None
     problem = None
     if not text:
         problem = f"the {what} is empty: type a sentence" + (f", for example '{phrasings[0]}'" if phrasings else "")
-    elif len(text) > MAX_TEXT_CHARS:
-        problem = f"the {what} is {len(text)} characters long; at most {MAX_TEXT_CHARS} are read"
+    elif len(words) > vocab.max_tokens:
+        problem = f"the {what} has {len(words)} words; this policy reads at most {vocab.max_tokens}"
     elif any(unicodedata.category(ch) in ("Cc", "Cf") for ch in text):
         problem = f"the {what} holds control characters: type plain words"
     elif not words:
@@ -187,9 +190,11 @@ class Teacher:
         from gpl_dist.splits import split_tasks
 
         d = self.domain
+        _check_seed(seed)
         if task_id is not None:
             if isinstance(task_id, bool) or not isinstance(task_id, (int, np.integer)) or not 0 <= task_id < d.num_tasks:
-                raise TeachingError(f"task {str(task_id)[:20]} is outside 0..{d.num_tasks - 1} of {d.name}")
+                shown = str(task_id) if len(str(task_id)) <= 12 else f"{str(task_id)[:6]}... ({len(str(task_id))} digits)"
+                raise TeachingError(f"task {shown} is outside 0..{d.num_tasks - 1} of {d.name}")
             return int(task_id)
         tasks = split_tasks(d.name, split)
         rng = np.random.default_rng([seed, 0x7EAC])
@@ -209,8 +214,7 @@ class Teacher:
 
     def episode(self, task_id: int, seed: int = 0, source: str = "terminal") -> "TeachingEpisode":
         """A new teaching episode of ``task_id`` (``resolve_task``) with action sampling seeded by ``seed``."""
-        if not 0 <= seed < 2**63:
-            raise TeachingError(f"the seed must be in 0..2^63-1, got {seed}")
+        _check_seed(seed)
         return TeachingEpisode(self, int(task_id), int(seed), source)
 
     def replay(self, task_id: int, seed: int, corrections: list[str]) -> tuple:
@@ -241,6 +245,15 @@ class Teacher:
             env.step(a)
         oracle = make_corrector(self.domain.name, self.cfg.env.correction_kind)
         return oracle.correct(env, derive_rng(seed, task_id, attempt_index, 0xC0)).text
+
+
+#: Seeds are mixed as 32-bit words (``gpl_dist.seeding``): larger ones would repeat smaller ones.
+MAX_SEED = 2**32 - 1
+
+
+def _check_seed(seed: int) -> None:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed <= MAX_SEED:
+        raise TeachingError(f"the seed must be a whole number in 0..{MAX_SEED}, got {str(seed)[:24]}")
 
 
 def instruction_of(domain: DomainSpec, task_id: int) -> str:

@@ -96,7 +96,7 @@ class RLCurve:
         job: the job.
         completion: float ``(trajectories,)`` the final completion of each training trajectory, in order.
         success: bool ``(trajectories,)`` whether each solved the task.
-        env_steps: env steps taken (a whole number of PPO rollouts, so a little more than needed).
+        env_steps: env steps taken (the budget's trajectories, whole).
         seconds: wall time.
     """
 
@@ -137,6 +137,16 @@ class TaskFeatures(nn.Module):
         # SB3 hands channels-last images over channels-first (VecTransposeImage): undo that
         self.channels_first = tuple(observation_space.shape) != self.obs_shape
         self.features_dim = int([m for m in self.trunk.modules() if isinstance(m, nn.Linear)][-1].out_features)
+
+    def train(self, mode: bool = True) -> "TaskFeatures":
+        """SB3 switches to training mode for its updates; BatchNorm layers keep their statistics
+        (else an update's log-probabilities would not be the rollout's, and the statistics would
+        drift from the pretrained ones without a gradient step)."""
+        super().train(mode)
+        for m in self.modules():
+            if isinstance(m, nn.modules.batchnorm._BatchNorm):
+                m.eval()
+        return self
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         if self.channels_first:
@@ -196,6 +206,25 @@ def task_network(domain: DomainSpec, weights: dict[str, np.ndarray] | None, seed
     return network
 
 
+def _fit_batchnorm(network: GPLPolicy, domain: DomainSpec, task_id: int, seed: int, episodes: int = 2) -> None:
+    """A fresh network's input BatchNorm (relocation's state encoder) gets the statistics of
+    ``episodes`` random-action episodes of the task: PPO keeps BatchNorm statistics fixed."""
+    norms = [m for m in network.state.modules() if isinstance(m, nn.BatchNorm1d)]
+    if not norms:
+        return
+    rng = np.random.default_rng(seed)
+    env: Any = domain.make_env(task_id)
+    states = []
+    for _ in range(episodes):
+        obs, _ = env.reset(seed=int(rng.integers(2**31)))
+        for _ in range(domain.steps_per_attempt):
+            states.append(np.asarray(obs, dtype=np.float32))
+            obs = env.step(int(rng.integers(domain.num_actions)))[0]
+    x = torch.from_numpy(np.stack(states))
+    norms[0].running_mean = x.mean(0)
+    norms[0].running_var = x.var(0).clamp_min(1e-6)
+
+
 def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
              policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder, GPLPolicy]:
     """SB3's PPO on ``job``'s task, its env (recording each episode's completion) and the GPL
@@ -213,6 +242,8 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
     torch.manual_seed(seed)
     network = task_network(domain, weights, seed, policy_batchnorm)
     env = CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id))
+    if weights is None:
+        _fit_batchnorm(network, domain, job.task_id, seed)
     instruction_ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction))  # type: ignore[attr-defined]
     policy_kwargs: dict[str, Any] = dict(
         features_extractor_class=_features_class(env.observation_space),

@@ -35,15 +35,17 @@ NUM_COPIES = 20
 
 def authors_settings(seed: int) -> dict:
     """The authors' per-task PPO as stable-baselines3 arguments: one episode of each of 20 copies
-    per iteration, Monte-Carlo returns (GAE with lambda 1), their networks, one Adam at 1e-3, the
-    value loss at full weight and a small entropy bonus."""
+    per iteration, GAE with lambda 1 (their Monte-Carlo returns, except that SB3 bootstraps the
+    value at the time limit), their networks, one Adam at 1e-3, the value loss at full weight and
+    a small entropy bonus."""
     return dict(n_steps=EPISODE_STEPS, batch_size=128, n_epochs=10, learning_rate=1e-3, gamma=0.99, gae_lambda=1.0,
                 clip_range=0.2, ent_coef=0.001, vf_coef=1.0, seed=seed, device="cpu", verbose=0,
                 policy_kwargs=dict(net_arch=dict(pi=[32, 32], vf=[64, 64]), activation_fn=nn.Tanh))
 
 
 def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0) -> dict:
-    """SB3 PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran."""
+    """SB3 PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran (the
+    seconds include the update after the finishing iteration, which SB3 runs before it stops)."""
     import gymnasium
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback

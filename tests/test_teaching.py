@@ -58,6 +58,7 @@ MULTIROOM = get_domain("multiroom")
     ("enter the\u200b blue room", "control characters"),
     ("Geh in den blauen Raum", "knows too few of the words"),
     ("进入蓝色房间", "no English words"),
+    (" ".join(["enter the blue room"] * 9), "this policy reads at most 32"),
 ])
 def test_unusable_corrections_are_refused_with_a_reason(text, needle):
     check = check_correction(MULTIROOM, text)
@@ -130,6 +131,11 @@ def test_tasks_are_chosen_by_id_instruction_or_draw(teacher):
     for bad in (-1, MULTIROOM.num_tasks, 10**30, True):
         with pytest.raises(TeachingError, match="outside"):
             teacher.resolve_task(task_id=bad)
+    for seed in (-1, 2**32, 2**63):  # seeds are mixed as 32-bit words: a larger one would repeat a smaller
+        with pytest.raises(TeachingError, match="seed must be a whole number"):
+            teacher.resolve_task(seed=seed)
+        with pytest.raises(TeachingError, match="seed must be a whole number"):
+            teacher.episode(TASK, seed=seed)
     with pytest.raises(TeachingError, match="closest is 'move blue triangle to red square'"):
         teacher.resolve_task(instruction="move blue triangle to red squar")
     with pytest.raises(TeachingError, match="no English words"):
@@ -189,7 +195,9 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
 
     from gpl_dist.teach_web import create_app
 
-    client = TestClient(create_app(teacher, tmp_path))
+    client = TestClient(create_app(teacher, tmp_path), base_url="http://127.0.0.1")
+    rebound = TestClient(create_app(teacher, tmp_path), base_url="http://attacker.example")
+    assert rebound.get("/api/info").status_code == 400  # DNS rebinding: a foreign Host is refused
     a = client.post("/api/episodes", json={"task_id": TASK, "seed": 3}).json()
     b = client.post("/api/episodes", json={"task_id": TASK, "seed": 4}).json()
     assert a["episode_id"] != b["episode_id"] and len(a["attempts"]) == 1
@@ -203,6 +211,9 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
         ("post", "/api/episodes/nope/attempts", {"correction": "enter the blue room"}, 404, "start a new one"),
         ("post", "/api/episodes", {"task_id": 99999}, 400, "outside"),
         ("post", "/api/episodes", {"task_id": "seven"}, 422, "task_id"),
+        ("post", "/api/episodes", {"task_id": True}, 422, "task_id"),
+        ("post", "/api/episodes", {"task_id": 10**40}, 400, "digits) is outside"),
+        ("post", "/api/episodes", {"task_id": 1, "seed": 2**32}, 422, "seed"),
         ("get", f"/api/episodes/{a['episode_id']}/attempts/5.gif", None, 400, "does not exist"),
     ]
     for method, path, body, status, needle in cases:

@@ -311,7 +311,9 @@ def sb3_ppo(policy: nn.Sequential, s: PPOSettings):
         e.unwrapped.rng = np.random.default_rng([s.seed, k])  # each env its own task stream
     hidden = [m.out_features for m in _linears(policy)[:-1]]
     model = ppo_class("MlpPolicy", env, learning_rate=s.lr, n_steps=EPISODE_STEPS, batch_size=s.minibatch,
-                      n_epochs=s.epochs, gamma=s.gamma, gae_lambda=s.gae_lambda, clip_range=s.clip, target_kl=s.max_kl,
+                      n_epochs=s.epochs, gamma=s.gamma, gae_lambda=s.gae_lambda, clip_range=s.clip,
+                      target_kl=s.max_kl / 1.5,  # SB3 stops once the KL passes 1.5 x target_kl
+                      max_grad_norm=float("inf"),  # no gradient clipping, as before SB3
                       seed=s.seed, device="cpu", verbose=0,
                       policy_kwargs=dict(features_extractor_class=extractor, features_extractor_kwargs=dict(norm=policy[0]),
                                          net_arch=dict(pi=hidden, vf=[256, 256]), activation_fn=nn.ReLU, ortho_init=False))
@@ -358,9 +360,11 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
     start = time.perf_counter()
 
     class Progress(BaseCallback):
-        """Counts iterations: the value layers alone for ``warmup``; a test every ``eval_every``."""
+        """Counts iterations: the value layers alone for ``warmup``; one line per iteration after
+        its update, with a test every ``eval_every``."""
 
         iteration = 0
+        completion = 0.0
 
         def _on_training_start(self) -> None:
             for q in pi_params:
@@ -369,13 +373,20 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
         def _on_step(self) -> bool:
             return True
 
-        def _on_rollout_end(self) -> None:
+        def _on_rollout_end(self) -> None:  # the iteration's update comes next
+            infos = self.locals.get("infos") or []
+            self.completion = float(np.mean([i.get("completion", 0.0) for i in infos]))
             self.iteration += 1
             for q in pi_params:
                 q.requires_grad_(self.iteration > s.warmup)
-            infos = self.locals.get("infos") or []
-            line = (f"iteration {self.iteration - 1}: train completion "
-                    f"{np.mean([i.get('completion', 0.0) for i in infos]):.3f} | {time.perf_counter() - start:.0f} s")
+
+        def _on_rollout_start(self) -> None:  # the previous iteration's update is done
+            if self.iteration > 0:
+                self.report()
+
+        def report(self) -> None:
+            line = (f"iteration {self.iteration - 1}: train completion {self.completion:.3f} | "
+                    f"{time.perf_counter() - start:.0f} s")
             if self.iteration % s.eval_every == 0:
                 net = policy_of(self.model, policy)
                 c, sv = test_completion(net)
@@ -384,7 +395,9 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
                     on_eval(net)
             log(line)
 
-    model.learn(total_timesteps=s.iterations * s.envs * EPISODE_STEPS, callback=Progress())
+    progress = Progress()
+    model.learn(total_timesteps=s.iterations * s.envs * EPISODE_STEPS, callback=progress)
+    progress.report()  # the last iteration's line
     tuned = policy_of(model, policy)
     c, sv = test_completion(tuned)
     log(f"end: test completion {c:.3f}, solved {sv:.2f}")
