@@ -137,6 +137,12 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
         state = "running" if holder else run_state(run, suite)
         held = f"; {holder.describe()}" if holder else ""
         print(f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})")
+    if suite.rl is not None:
+        from gpl_dist.suite_rl import attempts_jobs, result_path, rl_jobs
+
+        for what, jobs in (("RL jobs", rl_jobs(suite.rl)), ("GPL/GPR attempt sets", attempts_jobs(suite.rl))):
+            done = sum(result_path(args.out, j.key).is_file() for j in jobs)
+            print(f"rl: {done} of {len(jobs)} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
     return 0
 
 

@@ -84,6 +84,10 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     assert all(len(c.completion) == 3 for c in curves)
     assert attempts[0]["tasks"] == [69, 180] and np.array(attempts[0]["completion"]).shape == (2, 6)
     assert run_rl_plan(suite.rl, out, serial=True, log=lambda s: None) == 0  # done: nothing runs again
+    capsys.readouterr()
+    assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+    status = capsys.readouterr().out
+    assert "rl: 4 of 4 RL jobs done" in status and "rl: 1 of 1 GPL/GPR attempt sets done" in status
     (out / "rl" / "rl-scratch" / "multiroom" / "task69-seed0.json").unlink()  # as if killed before writing it
     assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
     assert "1 RL job(s) ran" in capsys.readouterr().out
