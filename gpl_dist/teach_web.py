@@ -41,6 +41,7 @@ from gpl_dist.teaching import (
     TeachingEpisode,
     TeachingError,
     check_correction,
+    instruction_of,
     write_episode_log,
 )
 
@@ -169,7 +170,8 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
         return {"domain": domain.name, "run_dir": teacher.run_dir, "checkpoint_round": teacher.round_index,
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
-                "examples": list(phrasings[:: max(1, len(phrasings) // 6)][:6])}
+                "examples": list(phrasings[:: max(1, len(phrasings) // 6)][:6]),
+                "example_instruction": instruction_of(domain, split_tasks(domain.name, split)[0])}
 
     @app.post("/api/check", response_model=CheckView)
     def check(body: CheckRequest) -> CheckView:

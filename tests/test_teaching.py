@@ -228,6 +228,7 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
     assert gif.status_code == 200 and gif.content[:6] == b"GIF89a"
     check = client.post("/api/check", json={"text": "enter the gry room"}).json()
     assert check["unknown_words"] == ["gry"] and check["suggestion"] == "enter the grey room"
+    assert client.get("/api/info").json()["example_instruction"].startswith("Move ")
     assert client.get(f"/api/episodes/{a['episode_id']}/hint").json()["hint"]
 
 
