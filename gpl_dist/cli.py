@@ -201,12 +201,15 @@ def _teacher(args: argparse.Namespace):
 
 def cmd_teach(args: argparse.Namespace) -> int:
     """``gpl-dist teach``: correct a trained policy by typing, attempt after attempt."""
+    from gpl_dist.splits import split_tasks
     from gpl_dist.teach_terminal import teach_in_terminal
 
     if args.task is not None and args.instruction is not None:
         raise UsageError("give --task or --instruction, not both")
     teacher = _teacher(args)
     task_id = teacher.resolve_task(args.task, args.instruction, args.seed, args.split)
+    if args.task is not None and task_id not in split_tasks(teacher.domain.name, args.split):
+        print(f"note: task {task_id} is not in the {args.split} split")
     out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
     teach_in_terminal(teacher.episode(task_id, args.seed, "terminal"), out, always_hint=args.hint)
     return 0
@@ -380,7 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
         p.add_argument("--split", default="test", help="split of the tasks drawn or matched (default test: held out)")
         p.add_argument("--max-corrections", type=int, default=10, help="corrections an episode may take")
-        p.add_argument("--out", help="folder of the teaching log (OUT/log/*.parquet) and GIFs (default RUN_DIR/teaching)")
+        p.add_argument("--out", help="folder of the teaching log (OUT/log/*.parquet)" + (" and GIFs (OUT/gifs)" if name == "teach"
+                       else "") + " (default RUN_DIR/teaching)")
         p.add_argument("--greedy", action="store_true", help="take the most likely action (default: sample, as eval)")
         if name == "teach":
             p.add_argument("--task", type=int, help="task id (default: one of --split drawn with --seed)")

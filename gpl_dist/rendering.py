@@ -73,7 +73,9 @@ def write_picture(frames: list[np.ndarray], out: str | Path, fps: int = 8) -> Pa
 #: Pixels of the caption bar under each frame of a policy's attempts.
 CAPTION_PX = 44
 #: Characters of a caption line (a correction is cut there, with "...").
-CAPTION_CHARS = 64
+CAPTION_CHARS = 48
+#: Font size of the captions, in pixels (readable when the page shows the GIF 300 px wide).
+CAPTION_FONT_PX = 14
 
 
 def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, seed: int = 0,
@@ -131,7 +133,7 @@ def gif_bytes(frames: list[np.ndarray], fps: int = 8) -> bytes:
 
 def _captioned(frame: np.ndarray, top: str, bottom: str, width_px: int = 400) -> np.ndarray:
     """``frame``, scaled to ``width_px`` wide, over a white bar holding two lines of text."""
-    from PIL import ImageDraw
+    from PIL import ImageDraw, ImageFont
 
     image = Image.fromarray(frame)
     image = image.resize((width_px, round(image.height * width_px / image.width)))
@@ -139,7 +141,8 @@ def _captioned(frame: np.ndarray, top: str, bottom: str, width_px: int = 400) ->
     canvas = Image.new("RGB", (w, h + CAPTION_PX), "white")
     canvas.paste(image, (0, 0))
     draw = ImageDraw.Draw(canvas)
+    font = ImageFont.load_default(size=CAPTION_FONT_PX)
     cut = lambda text: text if len(text) <= CAPTION_CHARS else text[: CAPTION_CHARS - 3] + "..."  # noqa: E731
-    draw.text((6, h + 4), cut(top), fill="black")
-    draw.text((6, h + 24), cut(bottom), fill="black")
+    draw.text((6, h + 3), cut(top), fill="black", font=font)
+    draw.text((6, h + 23), cut(bottom), fill="black", font=font)
     return np.asarray(canvas)

@@ -3,8 +3,10 @@
 Each attempt is printed as text (the path and the final state), with its completion and the path
 of a GIF of it; then the person types the next correction. Lines starting with ``:`` are commands:
 ``:hint`` (what the run's oracle would say), ``:quit``. A correction with words the policy does
-not know is shown with the closest known phrasing before it is sent: press Enter to send it as
-typed, or type another. Every attempt is logged (``gpl_dist.teaching``).
+not know, or that is none of the phrasings it was trained on, is shown with the closest known
+phrasing before it is sent: Enter sends it as typed, ``:use`` the closest one. Lines typed while
+an attempt runs are dropped (they were typed before seeing it). Every attempt is logged
+(``gpl_dist.teaching``).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ from typing import Callable, TextIO
 
 from gpl_dist.teaching import TaughtAttempt, TeachingEpisode, write_episode_log
 
-HELP = "type a correction, ':hint' for the oracle's, ':quit' to stop"
+HELP = "type a correction; commands: ':hint' (what the oracle would say), ':quit'"
 
 
 def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: bool = False,
@@ -35,7 +37,8 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
 
     log_dir, gif_dir = out_dir / "log", out_dir / "gifs"
     gif_dir.mkdir(parents=True, exist_ok=True)
-    say(f"task {episode.task_id} of {episode.teacher.domain.name}, seed {episode.seed}: '{episode.instruction}'")
+    say(f"task {episode.task_id} of {episode.teacher.domain.name} ({episode.split} split), seed {episode.seed}: "
+        f"'{episode.instruction}'")
     log_path = ""
     correction: str | None = None
     while True:
@@ -46,6 +49,7 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
         _show(say, attempt, gif)
         if attempt.success or episode.corrections_left <= 0:
             say("solved." if attempt.success else f"no corrections left ({episode.teacher.max_corrections} given).")
+            _discard_typed_ahead()  # nothing typed for the episode may reach the shell
             break
         if always_hint:
             say(f"hint: the oracle would say '{episode.hint()}'")
@@ -65,30 +69,55 @@ def _show(say: Callable[[str], None], attempt: TaughtAttempt, gif: Path) -> None
 
 def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
                      say: Callable[[str], None]) -> str | None:
-    """The next usable correction, or None to stop (``:quit``, end of input)."""
-    pending: str | None = None  # a correction with unknown words, sent on an empty line
+    """The next usable correction, or None to stop (``:quit``, end of input).
+
+    A correction with unknown words, or that is none of the phrasings the policy was trained on,
+    is shown with the closest one first: Enter sends it as typed, ``:use`` sends the closest one.
+    """
+    pending = None  # (typed text, closest phrasing) awaiting confirmation
     say(HELP)
     while True:
+        _discard_typed_ahead()  # lines typed while the attempt ran were typed before seeing it
         try:
-            line = read_line("correction> " if pending is None else "Enter to send as typed, or a new correction> ")
+            line = read_line("correction> " if pending is None else "Enter: send as typed, :use: send the closest, "
+                             "or type another> ")
         except EOFError:
+            say("")
             return None
         text = line.strip()
-        if text == "" and pending is not None:
-            return pending
+        if pending is not None and text in ("", ":use"):
+            return pending[0] if text == "" else pending[1]
+        pending = None
         if text in (":quit", ":q"):
             return None
         if text == ":hint":
             say(f"hint: the oracle would say '{episode.hint()}'")
             continue
+        if text.startswith(":"):
+            say(f"unknown command {text[:20]!r}: {HELP}")
+            continue
         check = episode.check(line)
         if check.problem:
             say(f"not sent: {check.problem}")
-            pending = None
             continue
+        if check.suggestion is None:
+            return check.text
         if check.unknown_words:
             say(f"unknown words: {', '.join(w[:40] for w in check.unknown_words[:8])} (the policy reads them as <unk>); "
                 f"closest known phrasing: '{check.suggestion}'")
-            pending = check.text
-            continue
-        return check.text
+        else:
+            say(f"not a phrasing the policy was trained on; the closest is '{check.suggestion}'")
+        pending = (check.text, check.suggestion)
+
+
+def _discard_typed_ahead() -> None:
+    """Drop what was typed at a terminal before the prompt appeared (no-op for piped input)."""
+    import sys
+
+    try:
+        import termios
+
+        if sys.stdin.isatty():
+            termios.tcflush(sys.stdin, termios.TCIFLUSH)
+    except (ImportError, OSError, ValueError):  # not a POSIX terminal
+        pass

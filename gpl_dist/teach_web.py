@@ -99,6 +99,7 @@ class EpisodeView(BaseModel):
 
     episode_id: str
     task_id: int
+    split: str
     seed: int
     instruction: str
     solved: bool
@@ -134,7 +135,7 @@ def _view(episode: TeachingEpisode) -> EpisodeView:
                             completion=a.completion, success=a.success, picture=a.picture,
                             gif_url=f"/api/episodes/{episode.episode_id}/attempts/{a.index}.gif")
                 for a in episode.attempts]
-    return EpisodeView(episode_id=episode.episode_id, task_id=episode.task_id, seed=episode.seed,
+    return EpisodeView(episode_id=episode.episode_id, task_id=episode.task_id, split=episode.split, seed=episode.seed,
                        instruction=episode.instruction, solved=episode.solved,
                        corrections_left=episode.corrections_left, attempts=attempts)
 
@@ -164,6 +165,10 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
     def page() -> str:
         return _PAGE.read_text()
 
+    @app.get("/favicon.ico")
+    def favicon() -> Response:
+        return Response(status_code=204)
+
     @app.get("/api/info")
     def info() -> dict:
         phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
@@ -181,6 +186,8 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
 
     @app.post("/api/episodes", response_model=EpisodeView)
     def start(body: StartRequest) -> EpisodeView:
+        if body.task_id is not None and body.instruction:
+            raise TeachingError("give a task id or an instruction, not both")
         task_id = teacher.resolve_task(body.task_id, body.instruction, body.seed, split)
         episode = teacher.episode(task_id, body.seed, "web")
         episode.attempt()

@@ -42,6 +42,7 @@ from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary, split_words
 from gpl_dist.records import Correction
 from gpl_dist.roles import DomainSpec
+from gpl_dist.splits import split_of
 
 #: Longest correction or instruction a person may type, in characters.
 MAX_TEXT_CHARS = 200
@@ -85,12 +86,14 @@ class CorrectionCheck:
 
 
 def check_correction(domain: DomainSpec, text: str, what: str = "correction",
-                     vocabulary: Vocabulary | None = None) -> CorrectionCheck:
+                     vocabulary: Vocabulary | None = None, phrasings: tuple[str, ...] | None = None) -> CorrectionCheck:
     """``CorrectionCheck`` of ``text`` for a policy of ``domain`` that reads ``vocabulary`` (default
-    the domain's; a model trained with paraphrases reads more); ``what`` names it in messages."""
+    the domain's; a model trained with paraphrases reads more); ``what`` names it in messages,
+    ``phrasings`` are the known sentences it is compared with (default the oracle's corrections)."""
     text = (text if isinstance(text, str) else "").strip()
     vocab = vocabulary or domain.vocabulary
-    phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
+    if phrasings is None:
+        phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
     if len(text) > MAX_TEXT_CHARS:  # before any other work: a pasted book costs nothing
         return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], (), (), (), None,
                                f"the {what} is {len(text)} characters long; at most {MAX_TEXT_CHARS} are read")
@@ -167,9 +170,12 @@ class Teacher:
 
     def __init__(self, run_dir: str | Path, checkpoint: str | None = None,
                  max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False):
+        from learner.checkpoint import LATEST
         from learner.evaluate import load_trained_policy
 
-        self.run_dir = str(run_dir)
+        self.run_dir = str(Path(run_dir).resolve())
+        #: the checkpoint file taught (absolute), as the log records it
+        self.checkpoint = str(Path(checkpoint).resolve() if checkpoint else Path(self.run_dir) / "checkpoints" / LATEST)
         self.cfg, self.model, self.round_index = load_trained_policy(run_dir, checkpoint)
         variant = self.cfg.model.variant
         if variant not in TEACHABLE_VARIANTS:
@@ -200,17 +206,17 @@ class Teacher:
         rng = np.random.default_rng([seed, 0x7EAC])
         if instruction is None:
             return int(tasks[int(rng.integers(len(tasks)))])
-        check = check_correction(d, instruction, "instruction", self.model.vocabulary)
+        by_instruction: dict[str, list[int]] = {}
+        for t in tasks:
+            by_instruction.setdefault(instruction_of(d, t), []).append(int(t))
+        check = check_correction(d, instruction, "instruction", self.model.vocabulary, tuple(by_instruction))
         if check.problem:
             raise TeachingError(check.problem)
-        by_instruction: dict[tuple[str, ...], list[int]] = {}
-        for t in tasks:
-            by_instruction.setdefault(tuple(split_words(instruction_of(d, t))), []).append(int(t))
-        matching = by_instruction.get(check.words)
+        matching = [ts for text, ts in by_instruction.items() if tuple(split_words(text)) == check.words]
         if not matching:
-            closest = closest_phrasing(check.words, tuple(" ".join(k) for k in by_instruction))
-            raise TeachingError(f"no {split} task has the instruction '{check.text}'; the closest is '{closest}'")
-        return matching[int(rng.integers(len(matching)))]
+            raise TeachingError(f"no {split} task has the instruction '{check.text}' (instructions are matched word for "
+                                f"word); the closest is '{check.suggestion}'")
+        return matching[0][int(rng.integers(len(matching[0])))]
 
     def episode(self, task_id: int, seed: int = 0, source: str = "terminal") -> "TeachingEpisode":
         """A new teaching episode of ``task_id`` (``resolve_task``) with action sampling seeded by ``seed``."""
@@ -247,6 +253,8 @@ class Teacher:
         return oracle.correct(env, derive_rng(seed, task_id, attempt_index, 0xC0)).text
 
 
+#: Splits named in the log, the first holding the task (``gpl_dist.splits.split_of``).
+SPLIT_ORDER = ("test", "train", "valid", "heldout_test", "heldout_train")
 #: Seeds are mixed as 32-bit words (``gpl_dist.seeding``): larger ones would repeat smaller ones.
 MAX_SEED = 2**32 - 1
 
@@ -287,6 +295,11 @@ class TeachingEpisode:
     @property
     def instruction(self) -> str:
         return instruction_of(self.teacher.domain, self.task_id)
+
+    @property
+    def split(self) -> str:
+        """The split holding the task (``test``: held out from training)."""
+        return split_of(self.teacher.domain.name, self.task_id, SPLIT_ORDER)
 
     @property
     def solved(self) -> bool:
@@ -376,7 +389,9 @@ class TeachingEpisode:
         for a in self.attempts:
             rows.append({
                 "episode": self.episode_id, "source": self.source, "run_dir": self.teacher.run_dir,
-                "checkpoint_round": self.teacher.round_index, "domain": self.teacher.domain.name,
+                "checkpoint": self.teacher.checkpoint, "checkpoint_round": self.teacher.round_index,
+                "greedy": self.teacher.greedy, "split": self.split,
+                "domain": self.teacher.domain.name,
                 "task_id": self.task_id, "seed": self.seed, "attempt": a.index, "instruction": self.instruction,
                 "correction": a.check.text if a.check else "",
                 "correction_tokens": list(a.check.token_ids) if a.check else [],
@@ -387,11 +402,14 @@ class TeachingEpisode:
         return rows
 
 
-#: The teaching log, one row per attempt: ``correction`` is the correction that led to the attempt
+#: The teaching log, one row per attempt: the run dir and checkpoint file (absolute), greedy or
+#: sampled actions, the task's split; ``correction`` is the correction that led to the attempt
 #: (empty for attempt 0), with its token ids and unknown words; ``hint_shown`` whether the
-#: oracle's hint was asked for before it; ``started_at`` when the attempt was asked for.
+#: oracle's hint was asked for before it; ``started_at`` when the attempt was asked for. With the
+#: seed and the corrections, what an episode needs to be replayed.
 LOG_SCHEMA = pa.schema([
-    ("episode", pa.string()), ("source", pa.string()), ("run_dir", pa.string()), ("checkpoint_round", pa.int64()),
+    ("episode", pa.string()), ("source", pa.string()), ("run_dir", pa.string()), ("checkpoint", pa.string()),
+    ("checkpoint_round", pa.int64()), ("greedy", pa.bool_()), ("split", pa.string()),
     ("domain", pa.string()), ("task_id", pa.int64()), ("seed", pa.int64()), ("attempt", pa.int64()),
     ("instruction", pa.string()), ("correction", pa.string()), ("correction_tokens", pa.list_(pa.int64())),
     ("unknown_words", pa.list_(pa.string())), ("hint_shown", pa.bool_()), ("completion", pa.float64()),

@@ -136,10 +136,12 @@ def test_tasks_are_chosen_by_id_instruction_or_draw(teacher):
             teacher.resolve_task(seed=seed)
         with pytest.raises(TeachingError, match="seed must be a whole number"):
             teacher.episode(TASK, seed=seed)
-    with pytest.raises(TeachingError, match="closest is 'move blue triangle to red square'"):
+    with pytest.raises(TeachingError, match="closest is 'Move blue triangle to red square'"):
         teacher.resolve_task(instruction="move blue triangle to red squar")
     with pytest.raises(TeachingError, match="no English words"):
         teacher.resolve_task(instruction="把蓝色三角形移到红色方块")
+    with pytest.raises(TeachingError, match="for example 'Move"):  # an instruction's example, not a correction's
+        teacher.resolve_task(instruction="")
 
 
 def test_the_log_is_one_parquet_row_per_attempt(teacher, tmp_path):
@@ -170,22 +172,26 @@ def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
 
 
 def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
-    typed = ["", "x" * 10_000, "enter\x1b[31m the room", "Geh nach Norden", ":hint", "enter the gry room", "",
-             "enter the blue room", ":quit"]
+    typed = ["", "x" * 10_000, "enter\x1b[31m the room", "Geh nach Norden", ":hint", ":help", "enter the gry room", "",
+             "the", ":use", ":quit"]
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(typed) + "\n"))
     assert main(["teach", "--run-dir", str(run), "--task", str(TASK), "--seed", "3", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
-    for needle in ("'Move blue triangle to red square'", "attempt 1 (instruction", "empty", "at most 200",
+    for needle in ("'Move blue triangle to red square'", "(test split)", "attempt 1 (instruction", "empty", "at most 200",
                    "control characters", "knows too few of the words", "hint: the oracle would say",
-                   "unknown words: gry", "closest known phrasing: 'enter the grey room'",
-                   "attempt 2 (correction: 'enter the gry room')", "attempt 3 (correction: 'enter the blue room')",
+                   "unknown command ':help'", "unknown words: gry", "closest known phrasing: 'enter the grey room'",
+                   "attempt 2 (correction: 'enter the gry room')", "not a phrasing the policy was trained on",
                    "carrying", "GIF: "):
         assert needle in out, needle
     gifs = sorted((tmp_path / "gifs").glob("*.gif"))
     assert len(gifs) == 3 and all(g.stat().st_size > 1000 for g in gifs)
     rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
-    assert [r["correction"] for r in sorted(rows, key=lambda r: r["attempt"])] == ["", "enter the gry room",
-                                                                                 "enter the blue room"]
+    rows.sort(key=lambda r: r["attempt"])
+    said = [r["correction"] for r in rows]
+    assert said[:2] == ["", "enter the gry room"] and len(said) == 3 and said[2] != "the"  # ':use' sent the closest
+    assert said[2] in MULTIROOM.correction_phrasings() and "attempt 3 (correction: '" + said[2] in out
+    assert rows[0]["run_dir"] == str(run.resolve()) and rows[0]["checkpoint"].endswith("checkpoints/latest.pt")
+    assert rows[0]["split"] == "test" and rows[0]["greedy"] is False
     assert main(["teach", "--run-dir", str(run), "--task", "99999", "--out", str(tmp_path)]) == 2
     assert "outside 0..3239" in capsys.readouterr().err
 
@@ -214,6 +220,7 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
         ("post", "/api/episodes", {"task_id": True}, 422, "task_id"),
         ("post", "/api/episodes", {"task_id": 10**40}, 400, "digits) is outside"),
         ("post", "/api/episodes", {"task_id": 1, "seed": 2**32}, 422, "seed"),
+        ("post", "/api/episodes", {"task_id": 1, "instruction": "move blue ball to red square"}, 400, "not both"),
         ("get", f"/api/episodes/{a['episode_id']}/attempts/5.gif", None, 400, "does not exist"),
     ]
     for method, path, body, status, needle in cases:

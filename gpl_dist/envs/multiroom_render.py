@@ -140,10 +140,13 @@ def render_text(env, trail: list[int]) -> str:
             shape, colour = env._obj_codes[i]
             rows[xy[1]][xy[0]] = SHAPE_LETTERS[shape] + COLOUR_LETTERS[colour - 1]
     ax, ay = env.agent_pos
+    under = [f"the {g.colour} goal" for g in env.task.goals if tuple(g.xy) == (ax, ay)]
+    under += [f"the {o.colour} {o.shape}" for o, xy in zip(env.task.objects, env.object_positions) if xy == (ax, ay)]
     carried = env._obj_codes[env.carrying] if env.carrying >= 0 else None
     rows[ay][ax] = "@" + (COLOUR_LETTERS[carried[1] - 1] if carried else " ")
     held = "nothing"
     if carried:
         obj = env.task.objects[env.carrying]
         held = f"the {obj.colour} {obj.shape}"
-    return "\n".join("".join(r) for r in rows) + f"\n{TEXT_LEGEND}\ncarrying {held}; {len(trail) - 1} steps"
+    standing = f"; standing on {' and '.join(under)}" if under else ""
+    return "\n".join("".join(r) for r in rows) + f"\n{TEXT_LEGEND}\ncarrying {held}{standing}; {len(trail) - 1} steps"
