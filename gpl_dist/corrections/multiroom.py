@@ -46,6 +46,7 @@ rolling a solved task out, so this is rarely asked for.
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -161,6 +162,7 @@ _COMPASS = ("north", "northeast", "east", "southeast", "south", "southwest", "we
 _THINGS = ("the object room", "the object", "the exit", "the goal room", "the goal")
 
 
+@functools.cache
 def phrasings() -> tuple[str, ...]:
     """Every correction a multi-room oracle of a text kind (subgoal, directional, binary) can say:
     the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""

@@ -27,6 +27,7 @@ tokenizer reads them: ``"move red to x zero point nine three y minus zero point 
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -145,6 +146,7 @@ class RelocationCorrector:
         return full_information_text(env)
 
 
+@functools.cache
 def phrasings() -> tuple[str, ...]:
     """Every correction the relocation oracle of a text kind can say (touch, directional,
     relational): the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
