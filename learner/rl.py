@@ -20,7 +20,7 @@ and torch's); one torch thread per job.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium
@@ -292,7 +292,6 @@ class CurveSummary:
     q25: tuple[float, ...]
     q75: tuple[float, ...]
     num_tasks: int
-    extra: dict = field(default_factory=dict)
 
 
 def smoothed(completion: tuple[float, ...] | list[float], points: tuple[int, ...], window: float = 0.1) -> list[float]:
