@@ -69,9 +69,10 @@ def _rl_task(job, settings, weights, policy_batchnorm: bool):
     return run_rl_job(job, settings, weights, policy_batchnorm)
 
 
-def run_rl_on_ray(jobs: list, settings, weights: dict, address: str | None, on_done, log=print) -> None:
+def run_rl_on_ray(jobs: list, settings: dict, weights: dict, address: str | None, on_done, log=print) -> None:
     """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
-    as each finishes. ``weights``: domain -> (numpy weights, policy_batchnorm) for ``rl-finetune``,
+    as each finishes. ``settings``: domain -> ``learner.rl.PPOSettings``. ``weights``: domain ->
+    (numpy weights, policy_batchnorm) for ``rl-finetune``,
     put in the object store once. Raises after all ended if any failed."""
     owned = init_ray(address, num_workers=1)
     try:
@@ -79,7 +80,7 @@ def run_rl_on_ray(jobs: list, settings, weights: dict, address: str | None, on_d
         pending = {}
         for job in jobs:
             w, bn = shared[job.domain] if job.method == "rl-finetune" else (None, False)
-            pending[_rl_task.remote(job, settings, w, bn)] = job
+            pending[_rl_task.remote(job, settings[job.domain], w, bn)] = job
         failed = []
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)

@@ -45,7 +45,15 @@ class RLPlan:
     attempts_from: Mapping[str, tuple[str, ...]]
     """Domain -> the suite entries (GPL, GPR) drawn as points at 1..6 trajectories."""
     ppo: Mapping[str, Any]
-    """``learner.rl.PPOSettings`` fields that differ from their defaults."""
+    """``learner.rl.PPOSettings`` fields that differ from their defaults, for every domain; a
+    domain's name maps to its own further overrides (``relocation: {batch_size: 128}``)."""
+
+    def settings(self, domain: str):
+        """The ``learner.rl.PPOSettings`` of ``domain``'s jobs."""
+        from learner.rl import PPOSettings
+
+        common = {k: v for k, v in self.ppo.items() if not isinstance(v, Mapping)}
+        return PPOSettings(**{**common, **self.ppo.get(domain, {})})
 
 
 @dataclass(frozen=True)
@@ -95,10 +103,20 @@ def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
         expect(domain in tasks, f"{domain}", "names a domain without tasks")
         expect(name in entry_names, f"{domain}", f"no entry '{name}'")
     ppo = raw.get("ppo") or {}
-    fields = {f.name: f.type for f in dataclasses.fields(PPOSettings)}
-    for key, value in ppo.items():
-        expect(key in fields, f"ppo.{key}", f"unknown PPO setting (known: {', '.join(fields)})")
-        expect(isinstance(value, (int, float)) and not isinstance(value, bool), f"ppo.{key}", "expected a number")
+    expect(isinstance(ppo, dict), "ppo", "expected a mapping of PPO settings")
+    for domain in (k for k in ppo if k in tasks):
+        expect(isinstance(ppo[domain], dict), f"ppo.{domain}", "expected a mapping of PPO settings")
+    fields = {f.name for f in dataclasses.fields(PPOSettings)}
+    counts = {"n_envs": 1, "n_steps": 0, "batch_size": 1, "n_epochs": 1}  # whole numbers, and their least value
+    overrides = [("ppo.", {k: v for k, v in ppo.items() if k not in tasks})]
+    overrides += [(f"ppo.{d}.", ppo[d]) for d in ppo if d in tasks]
+    for prefix, settings in overrides:
+        for key, value in settings.items():
+            expect(key in fields, f"{prefix}{key}", f"unknown PPO setting (known: {', '.join(sorted(fields))}, or a domain)")
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if key in counts:
+                ok = isinstance(value, int) and not isinstance(value, bool) and value >= counts[key]
+            expect(ok, f"{prefix}{key}", f"expected {'a whole number >= ' + str(counts[key]) if key in counts else 'a number'}")
     return RLPlan(tasks, tuple(seeds), raw["trajectories"], dict(pretrained), attempts_from, dict(ppo))
 
 
@@ -181,9 +199,9 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     The GPL/GPR points first (seconds each), then the RL jobs: one after another with
     ``serial``, else each a Ray task (local Ray, or the cluster at ``address``).
     """
-    from learner.rl import PPOSettings, run_rl_job
+    from learner.rl import run_rl_job
 
-    settings = PPOSettings(**plan.ppo)
+    settings = {d: plan.settings(d) for d in plan.tasks}
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
     todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
     for job in todo_attempts:
@@ -202,7 +220,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     if serial:
         for job in jobs:
             w, bn = weights.get(job.domain, (None, False)) if job.method == "rl-finetune" else (None, False)
-            finished(job, run_rl_job(job, settings, w, bn))
+            finished(job, run_rl_job(job, settings[job.domain], w, bn))
     elif jobs:
         from gpl_dist.suite_ray import run_rl_on_ray
 

@@ -20,6 +20,7 @@ and torch's); one torch thread per job.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,24 +41,31 @@ RL_METHODS = ("rl-scratch", "rl-finetune")
 
 @dataclass(frozen=True)
 class PPOSettings:
-    """stable-baselines3 PPO's settings for every RL job (its defaults unless said)."""
+    """stable-baselines3 PPO's settings for every RL job: the authors' expert PPO (their repository's
+    ``ppo.py``, ``../shared/reference/original-code-facts.md`` section 4), which the paper says its RL
+    baselines use: 20 copies of the task stepped together, one episode of each per update,
+    Monte-Carlo returns, one Adam at 1e-3 for ``policy + value MSE - 0.001 entropy``."""
 
-    learning_rate: float = 3e-4
-    """Adam learning rate."""
-    n_steps: int = 2048
-    """Env steps per environment between updates."""
+    n_envs: int = 20
+    """Copies of the task stepped together (one batched policy forward for all of them)."""
+    n_steps: int = 0
+    """Env steps per copy between updates; 0: one episode (the domain's ``steps_per_attempt``)."""
+    learning_rate: float = 1e-3
+    """Adam learning rate (policy and value share it)."""
     batch_size: int = 64
-    """Minibatch size of an update."""
+    """Minibatch size of an update (the authors: 64 in multi-room, 128 in relocation)."""
     n_epochs: int = 10
     """Passes over each rollout."""
     gamma: float = 0.99
     """Discount factor."""
-    gae_lambda: float = 0.95
-    """GAE's lambda."""
+    gae_lambda: float = 1.0
+    """GAE's lambda (1: Monte-Carlo returns minus the value, as the authors)."""
     clip_range: float = 0.2
     """PPO's ratio clip."""
-    ent_coef: float = 0.0
+    ent_coef: float = 0.001
     """Entropy bonus."""
+    vf_coef: float = 1.0
+    """Weight of the value loss."""
     value_hidden: int = 64
     """Width of the value head's hidden layer (the policy head reads the network's features directly)."""
 
@@ -181,12 +189,14 @@ def _features_class(observation_space, **kwargs):
 
 
 class CompletionRecorder(gymnasium.Wrapper):
-    """Records each episode's final ``info["completion"]`` and ``info["success"]``."""
+    """Records each episode's final ``info["completion"]`` and ``info["success"]``; copies of a task
+    may share one pair of lists (``completion``, ``success``), which then hold every copy's
+    episodes in the order they end."""
 
-    def __init__(self, env: gymnasium.Env):
+    def __init__(self, env: gymnasium.Env, completion: list[float] | None = None, success: list[bool] | None = None):
         super().__init__(env)
-        self.completion: list[float] = []
-        self.success: list[bool] = []
+        self.completion: list[float] = [] if completion is None else completion
+        self.success: list[bool] = [] if success is None else success
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
@@ -225,11 +235,18 @@ def _fit_batchnorm(network: GPLPolicy, domain: DomainSpec, task_id: int, seed: i
     norms[0].running_var = x.var(0).clamp_min(1e-6)
 
 
+def _returns(env: gymnasium.Env):
+    """A factory of ``env`` itself, as SB3's vectorised envs take factories."""
+    return lambda: env
+
+
 def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
              policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder, GPLPolicy]:
-    """SB3's PPO on ``job``'s task, its env (recording each episode's completion) and the GPL
-    network inside it; ``weights`` (an instruction-only policy's, as numpy) for ``rl-finetune``."""
+    """SB3's PPO on ``settings.n_envs`` copies of ``job``'s task, the first copy (its lists record
+    every copy's episodes) and the GPL network inside the policy; ``weights`` (an instruction-only
+    policy's, as numpy) for ``rl-finetune``."""
     from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
 
     if job.method not in RL_METHODS:
         raise UsageError(f"unknown RL method '{job.method}' (known: {', '.join(RL_METHODS)})")
@@ -238,48 +255,59 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
     domain = get_domain(job.domain)
     if not 0 <= job.task_id < domain.num_tasks or job.trajectories < 1:
         raise UsageError(f"RL job {job.key}: task outside 0..{domain.num_tasks - 1} or no trajectories")
+    if settings.n_envs < 1 or settings.n_steps < 0:
+        raise UsageError(f"PPO settings: n_envs must be >= 1 and n_steps >= 0 (got {settings.n_envs}, {settings.n_steps})")
     seed = derive_seed(job.seed, job.task_id, 0x5B3) % 2**32  # SB3 seeds numpy's legacy generator too
     torch.manual_seed(seed)
     network = task_network(domain, weights, seed, policy_batchnorm)
-    env = CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id))
+    completion: list[float] = []
+    success: list[bool] = []
+    copies = [CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id), completion, success)
+              for _ in range(settings.n_envs)]
+    env = DummyVecEnv([_returns(e) for e in copies])  # SB3 resets copy k with seed + k
     if weights is None:
         _fit_batchnorm(network, domain, job.task_id, seed)
-    instruction_ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction))  # type: ignore[attr-defined]
+    instruction_ids = torch.from_numpy(network.vocabulary.encode(copies[0].unwrapped.instruction))  # type: ignore[attr-defined]
     policy_kwargs: dict[str, Any] = dict(
-        features_extractor_class=_features_class(env.observation_space),
+        features_extractor_class=_features_class(copies[0].observation_space),
         features_extractor_kwargs=dict(network=network, instruction_ids=instruction_ids, obs_shape=domain.obs_shape),
         net_arch=dict(pi=[], vf=[settings.value_hidden]), normalize_images=False,
         # SB3 re-initialises every layer orthogonally by default: right from scratch, wrong for pretrained weights
         ortho_init=weights is None)
-    model = PPO("MlpPolicy", env, learning_rate=settings.learning_rate,
-                n_steps=settings.n_steps, batch_size=settings.batch_size, n_epochs=settings.n_epochs, gamma=settings.gamma,
-                gae_lambda=settings.gae_lambda, clip_range=settings.clip_range, ent_coef=settings.ent_coef,
-                policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0)
+    with warnings.catch_warnings():  # an episode's steps need not be a multiple of the minibatch: SB3 warns, we know
+        warnings.filterwarnings("ignore", message=".*mini-batch size.*")
+        model = PPO("MlpPolicy", env, learning_rate=settings.learning_rate,
+                    n_steps=settings.n_steps or domain.steps_per_attempt, batch_size=settings.batch_size,
+                    n_epochs=settings.n_epochs, gamma=settings.gamma, gae_lambda=settings.gae_lambda,
+                    clip_range=settings.clip_range, ent_coef=settings.ent_coef, vf_coef=settings.vf_coef,
+                    policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0)
     if weights is not None:
         last: nn.Linear = network.head[1]  # type: ignore[assignment]
         action_net: nn.Linear = model.policy.action_net  # type: ignore[assignment]
         with torch.no_grad():  # start from exactly the pretrained policy: its last layer is SB3's action layer
             action_net.weight.copy_(last.weight)
             action_net.bias.copy_(last.bias)
-    return model, env, network
+    return model, copies[0], network
 
 
 def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
                policy_batchnorm: bool = False) -> RLCurve:
-    """PPO on ``job``'s task until ``job.trajectories`` episodes have run (``make_ppo``)."""
+    """PPO on ``job``'s task until ``job.trajectories`` episodes have ended (``make_ppo``); the copies
+    end their episodes together, so the last update may run up to ``n_envs - 1`` more, which the
+    curve leaves out."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     torch.set_num_threads(1)
-    model, env, _ = make_ppo(job, settings, weights, policy_batchnorm)
+    model, log, _ = make_ppo(job, settings, weights, policy_batchnorm)
 
     class _StopAtBudget(BaseCallback):
         def _on_step(self) -> bool:
-            return len(env.completion) < job.trajectories
+            return len(log.completion) < job.trajectories
 
     start = time.perf_counter()
     steps = get_domain(job.domain).steps_per_attempt
-    model.learn(total_timesteps=job.trajectories * steps, callback=_StopAtBudget())
-    return RLCurve(job, tuple(env.completion[: job.trajectories]), tuple(env.success[: job.trajectories]),
+    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps, callback=_StopAtBudget())
+    return RLCurve(job, tuple(log.completion[: job.trajectories]), tuple(log.success[: job.trajectories]),
                    int(model.num_timesteps), time.perf_counter() - start)
 
 
