@@ -125,14 +125,15 @@ def rl_jobs(plan: RLPlan, methods: tuple[str, ...] | None = None) -> list:
     domain names its pretrained entry)."""
     from learner.rl import RL_METHODS, RLJob
 
-    jobs = []
-    for method in methods or RL_METHODS:
-        for domain, tasks in plan.tasks.items():
-            if method == "rl-finetune" and domain not in plan.pretrained:
-                continue
-            for seed in plan.seeds:
-                jobs += [RLJob(method, domain, t, seed, plan.trajectories, plan.pretrained.get(domain, "")
-                               if method == "rl-finetune" else "") for t in tasks]
+    jobs = []  # task by task, every method of a task together: a partial run compares them on the same tasks
+    for domain, tasks in plan.tasks.items():
+        for seed in plan.seeds:
+            for t in tasks:
+                for method in methods or RL_METHODS:
+                    if method == "rl-finetune" and domain not in plan.pretrained:
+                        continue
+                    pretrained = plan.pretrained.get(domain, "") if method == "rl-finetune" else ""
+                    jobs.append(RLJob(method, domain, t, seed, plan.trajectories, pretrained))
     return jobs
 
 
@@ -196,26 +197,35 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
                 domains: tuple[str, ...] = (), log: Callable[[str], None] = print) -> int:
     """Run every job of ``plan`` whose result is not written yet; returns how many ran.
 
-    The GPL/GPR points first (seconds each), then the RL jobs: one after another with
-    ``serial``, else each a Ray task (local Ray, or the cluster at ``address``).
+    The GPL/GPR points first (seconds each; an entry not trained yet is left for a later run), then
+    the RL jobs, task by task: one after another with ``serial``, else each a Ray task (local Ray,
+    or the cluster at ``address``).
     """
     from learner.rl import run_rl_job
 
     settings = {d: plan.settings(d) for d in plan.tasks}
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
     todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
+    ran = 0
     for job in todo_attempts:
-        write_result(out, job.key, run_attempts_job(job, plan, out))
+        try:
+            write_result(out, job.key, run_attempts_job(job, plan, out))
+        except ConfigError as err:  # its entry is not trained yet: the RL jobs do not need it
+            log(f"[rl] {job.key} left for later: {err}")
+            continue
+        ran += 1
         log(f"[rl] {job.key} written")
     jobs = [j for j in rl_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
     weights = {d: pretrained_weights(out, plan.pretrained[d]) for d in {j.domain for j in jobs if j.method == "rl-finetune"}}
-    log(f"[rl] {len(jobs)} RL job(s) to run ({len(rl_jobs(plan)) - len(jobs)} already done)")
+    done = sum(keep(j.domain) for j in rl_jobs(plan)) - len(jobs)
+    log(f"[rl] {len(jobs)} RL job(s) to run ({done} already done)")
 
     def finished(job, curve) -> None:
         write_result(out, job.key, curve.to_json())
         tail = curve.completion[-max(1, len(curve.completion) // 10):]
+        solved = f", updates stopped at {curve.solved_at} (solved)" if curve.solved_at else ""
         log(f"[rl] {job.key}: {len(curve.completion)} trajectories in {curve.seconds:.0f}s, "
-            f"completion over the last tenth {sum(tail) / len(tail):.3f}")
+            f"completion over the last tenth {sum(tail) / len(tail):.3f}{solved}")
 
     if serial:
         for job in jobs:
@@ -225,7 +235,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
         from gpl_dist.suite_ray import run_rl_on_ray
 
         run_rl_on_ray(jobs, settings, weights, address, finished, log)
-    return len(todo_attempts) + len(jobs)
+    return ran + len(jobs)
 
 
 def load_results(out: str | Path) -> tuple[list, list[dict]]:

@@ -3,7 +3,8 @@ baselines (its figure of completion against trajectories per task).
 
 Two methods, one network: the instruction-only GPL network of the domain (its state encoder, the
 task's instruction encoded once as a learnable vector, and its policy MLP) is SB3's features
-extractor (``TaskFeatures``); SB3 adds the action and value layers on top.
+extractor (``TaskFeatures``); SB3 adds the action layer on top, and the value head reads its own
+copy of that trunk (the authors' value network was separate from the policy).
 
 - ``rl-scratch``: the network freshly initialised (``seed``; SB3's orthogonal initialisation), PPO from there;
 - ``rl-finetune``: the network and its final action layer loaded from an instruction-only policy
@@ -12,13 +13,15 @@ extractor (``TaskFeatures``); SB3 adds the action and value layers on top.
 Both see the env's observation (multi-room: the 7x7 categorical window through the GPL grid
 encoder, a small CNN) and its dense reward (the paper's: multi-room -0.01 x distance to the next
 subgoal and +100 per newly completed subgoal; relocation -(gripper-to-block + 5 x block-to-target)).
-Every training trajectory's final completion is recorded, in order (``RLCurve``), until
-``trajectories`` have been run. Everything is a function of the job's seed (SB3's, the env's resets
+PPO runs the authors' expert settings (``PPOSettings``), updates stopping once every copy of the
+task solved it, as theirs did. Every training trajectory's final completion is recorded, in order
+(``RLCurve``), until ``trajectories`` have been run. Everything is a function of the job's seed (SB3's, the env's resets
 and torch's); one torch thread per job.
 """
 
 from __future__ import annotations
 
+import copy
 import time
 import warnings
 from dataclasses import dataclass
@@ -68,6 +71,14 @@ class PPOSettings:
     """Weight of the value loss."""
     value_hidden: int = 64
     """Width of the value head's hidden layer (the policy head reads the network's features directly)."""
+    stop_when_solved: bool = True
+    """Stop updating once every copy solved the task in one update's episodes, as the authors' expert
+    PPO stopped; later trajectories are sampled from that policy. (Updating on: once all copies
+    succeed the advantages are near-equal, normalising them amplifies noise, and the policy can
+    collapse: measured on multi-room task 69, 0.99 completion to 0.0 within 100 trajectories.)"""
+    share_trunk: bool = False
+    """Whether the value head reads the policy's trunk. No (the authors' separate value network): the
+    value has its own copy of the trunk, so returns in the hundreds do not pull the policy's features."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +117,7 @@ class RLCurve:
         success: bool ``(trajectories,)`` whether each solved the task.
         env_steps: env steps taken (the budget's trajectories, whole).
         seconds: wall time.
+        solved_at: trajectories run when updates stopped (``PPOSettings.stop_when_solved``), else None.
     """
 
     job: RLJob
@@ -113,16 +125,18 @@ class RLCurve:
     success: tuple[bool, ...]
     env_steps: int
     seconds: float
+    solved_at: int | None = None
 
     def to_json(self) -> dict:
         """The curve as JSON (``from_json`` reads it back)."""
         return {"job": self.job.__dict__, "completion": list(self.completion), "success": list(self.success),
-                "env_steps": self.env_steps, "seconds": self.seconds}
+                "env_steps": self.env_steps, "seconds": self.seconds, "solved_at": self.solved_at}
 
     @classmethod
     def from_json(cls, data: dict) -> "RLCurve":
         return cls(RLJob(**data["job"]), tuple(float(x) for x in data["completion"]),
-                   tuple(bool(x) for x in data["success"]), int(data["env_steps"]), float(data["seconds"]))
+                   tuple(bool(x) for x in data["success"]), int(data["env_steps"]), float(data["seconds"]),
+                   data.get("solved_at"))
 
 
 class TaskFeatures(nn.Module):
@@ -178,7 +192,9 @@ def _features_class(observation_space, **kwargs):
 
     class _Extractor(BaseFeaturesExtractor):
         def __init__(self, observation_space, network, instruction_ids, obs_shape):
-            inner = TaskFeatures(observation_space, network, instruction_ids, obs_shape)
+            # SB3 builds one extractor for the policy and, unless they share it, one for the value:
+            # each gets its own copy of the network
+            inner = TaskFeatures(observation_space, copy.deepcopy(network), instruction_ids, obs_shape)
             super().__init__(observation_space, inner.features_dim)
             self.inner = inner
 
@@ -235,17 +251,29 @@ def _fit_batchnorm(network: GPLPolicy, domain: DomainSpec, task_id: int, seed: i
     norms[0].running_var = x.var(0).clamp_min(1e-6)
 
 
+def _stoppable_ppo_class():
+    """SB3's PPO whose updates can be switched off (``updating = False``) while it keeps sampling."""
+    from stable_baselines3 import PPO
+
+    class StoppablePPO(PPO):
+        updating = True
+
+        def train(self) -> None:
+            if self.updating:
+                super().train()
+
+    return StoppablePPO
+
+
 def _returns(env: gymnasium.Env):
     """A factory of ``env`` itself, as SB3's vectorised envs take factories."""
     return lambda: env
 
 
 def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
-             policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder, GPLPolicy]:
-    """SB3's PPO on ``settings.n_envs`` copies of ``job``'s task, the first copy (its lists record
-    every copy's episodes) and the GPL network inside the policy; ``weights`` (an instruction-only
-    policy's, as numpy) for ``rl-finetune``."""
-    from stable_baselines3 import PPO
+             policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder]:
+    """SB3's PPO on ``settings.n_envs`` copies of ``job``'s task and the first copy (its lists record
+    every copy's episodes); ``weights`` (an instruction-only policy's, as numpy) for ``rl-finetune``."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     if job.method not in RL_METHODS:
@@ -272,11 +300,12 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
         features_extractor_class=_features_class(copies[0].observation_space),
         features_extractor_kwargs=dict(network=network, instruction_ids=instruction_ids, obs_shape=domain.obs_shape),
         net_arch=dict(pi=[], vf=[settings.value_hidden]), normalize_images=False,
+        share_features_extractor=settings.share_trunk,
         # SB3 re-initialises every layer orthogonally by default: right from scratch, wrong for pretrained weights
         ortho_init=weights is None)
     with warnings.catch_warnings():  # an episode's steps need not be a multiple of the minibatch: SB3 warns, we know
         warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-        model = PPO("MlpPolicy", env, learning_rate=settings.learning_rate,
+        model = _stoppable_ppo_class()("MlpPolicy", env, learning_rate=settings.learning_rate,
                     n_steps=settings.n_steps or domain.steps_per_attempt, batch_size=settings.batch_size,
                     n_epochs=settings.n_epochs, gamma=settings.gamma, gae_lambda=settings.gae_lambda,
                     clip_range=settings.clip_range, ent_coef=settings.ent_coef, vf_coef=settings.vf_coef,
@@ -287,7 +316,12 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
         with torch.no_grad():  # start from exactly the pretrained policy: its last layer is SB3's action layer
             action_net.weight.copy_(last.weight)
             action_net.bias.copy_(last.bias)
-    return model, copies[0], network
+    return model, copies[0]
+
+
+def all_copies_solved(success: list[bool], n_envs: int) -> bool:
+    """Whether the last ``n_envs`` episodes (one per copy, as the copies end theirs together) all succeeded."""
+    return len(success) >= n_envs and all(success[-n_envs:])
 
 
 def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
@@ -298,17 +332,24 @@ def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[
     from stable_baselines3.common.callbacks import BaseCallback
 
     torch.set_num_threads(1)
-    model, log, _ = make_ppo(job, settings, weights, policy_batchnorm)
+    model, log = make_ppo(job, settings, weights, policy_batchnorm)
 
-    class _StopAtBudget(BaseCallback):
+    solved_at: list[int] = []
+
+    class _Budget(BaseCallback):
         def _on_step(self) -> bool:
             return len(log.completion) < job.trajectories
 
+        def _on_rollout_end(self) -> None:  # before the update of this rollout
+            if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
+                solved_at.append(len(log.success))
+                model.updating = False
+
     start = time.perf_counter()
     steps = get_domain(job.domain).steps_per_attempt
-    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps, callback=_StopAtBudget())
+    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps, callback=_Budget())
     return RLCurve(job, tuple(log.completion[: job.trajectories]), tuple(log.success[: job.trajectories]),
-                   int(model.num_timesteps), time.perf_counter() - start)
+                   int(model.num_timesteps), time.perf_counter() - start, solved_at[0] if solved_at else None)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,16 @@ from gpl_dist.models.gpl import state_dict_to_numpy
 from gpl_dist.suite import load_suite, run_suite
 from gpl_dist.suite_rl import load_results, rl_jobs, run_rl_plan
 from learner.evaluate import load_trained_policy
-from learner.rl import PPOSettings, RLJob, _instruction_only, log_points, make_ppo, run_rl_job, smoothed
+from learner.rl import (
+    PPOSettings,
+    RLJob,
+    _instruction_only,
+    all_copies_solved,
+    log_points,
+    make_ppo,
+    run_rl_job,
+    smoothed,
+)
 
 SMALL = PPOSettings(n_envs=2, n_steps=128, batch_size=64, n_epochs=1)
 
@@ -32,6 +41,20 @@ def test_ppo_records_every_trajectorys_completion_reproducibly(domain, task):
     assert RLJob("rl-scratch", domain, task, 1, 6) != job
 
 
+def test_updates_stop_once_every_copy_solved_the_task_and_sampling_goes_on():
+    assert all_copies_solved([False, True, True], 2) and not all_copies_solved([True, False], 2)
+    assert not all_copies_solved([True], 2)  # not every copy has ended an episode yet
+    model, log = make_ppo(RLJob("rl-scratch", "multiroom", 69, 0, 4), SMALL)
+    before = [p.detach().clone() for p in model.policy.parameters()]
+    model.updating = False
+    model.learn(total_timesteps=2 * SMALL.n_steps * SMALL.n_envs)
+    assert len(log.completion) >= 4  # it kept sampling episodes...
+    assert all(torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))  # ...with the same policy
+    model.updating = True
+    model.learn(total_timesteps=SMALL.n_steps * SMALL.n_envs)
+    assert not all(torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))
+
+
 @pytest.fixture(scope="module")
 def instruction_run(tmp_path_factory):
     run = tmp_path_factory.mktemp("rl") / "instr"
@@ -45,7 +68,7 @@ def test_finetuning_starts_from_exactly_the_pretrained_policy(instruction_run):
     cfg, network, _ = load_trained_policy(instruction_run)
     network.eval()
     job = RLJob("rl-finetune", "multiroom", 69, 0, 4, pretrained="instr")
-    model, env, inner = make_ppo(job, SMALL, state_dict_to_numpy(network), cfg.model.policy_batchnorm)
+    model, env = make_ppo(job, SMALL, state_dict_to_numpy(network), cfg.model.policy_batchnorm)
     obs = model.env.reset()[:1]  # the first copy, as SB3 sees it (channels first)
     obs_t, _ = model.policy.obs_to_tensor(obs)
     model.policy.set_training_mode(False)
@@ -55,6 +78,9 @@ def test_finetuning_starts_from_exactly_the_pretrained_policy(instruction_run):
         ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction)).reshape(1, -1)
         ours = torch.log_softmax(network.action_logits(raw, network.encode_conditioning(_instruction_only(ids))), 1)
     assert torch.allclose(sb3, ours, atol=1e-5)
+    pi, vf = model.policy.pi_features_extractor, model.policy.vf_features_extractor  # the authors' separate value net
+    assert not {id(p) for p in pi.parameters()} & {id(p) for p in vf.parameters()}
+    assert all(torch.equal(a, b) for a, b in zip(pi.parameters(), vf.parameters()))  # both from the pretrained trunk
     with pytest.raises(Exception, match="needs a pretrained policy"):
         make_ppo(job, SMALL, None)
 
@@ -96,6 +122,15 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md
     assert (tmp_path / "report" / "sample-complexity.png").stat().st_size > 5000
+
+
+def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
+    plan = load_suite(_suite(tmp_path, pretrained={}, tasks={"multiroom": [69]})).rl
+    lines: list[str] = []
+    assert run_rl_plan(plan, tmp_path / "out", serial=True, log=lines.append) == 1  # the one rl-scratch job
+    assert any("attempts/gpl-seed0 left for later" in s and "no trained policy yet" in s for s in lines), lines
+    curves, attempts = load_results(tmp_path / "out")
+    assert [c.job.key for c in curves] == ["rl-scratch/multiroom/task69-seed0"] and attempts == []
 
 
 @pytest.mark.parametrize("change, needle", [
