@@ -267,11 +267,13 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
     lines = ["Completion on each test task against the trajectories spent on it: PPO (stable-baselines3) per task from "
              "scratch and fine-tuned from the DAgger-trained instruction-only policy, each training trajectory's final "
              "completion (mean over the last tenth of the trajectories up to each point); GPL and GPR after k attempts "
-             "(k - 1 corrections) at k trajectories. Median over tasks, interquartile range in brackets. Made by "
+             "(k - 1 corrections) at k trajectories. Median over tasks, interquartile range in brackets. PPO stops "
+             "updating once every copy of the task solved it in one round of episodes (the authors' rule); the last "
+             "column counts those tasks and the median trajectories at which it happened. Made by "
              f"`gpl-dist suite rl configs/suites/paper.yaml --out {suite_out}`.", "",
              "| domain | method | tasks x seeds | after 1 | 3 | 6 | 10 | 100 | 1000 | last "
-             "| trajectories to reach GPL after 5 corrections |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| trajectories to reach GPL after 5 corrections | solved (updates stopped), median trajectories |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     fig_rows: dict[str, dict[str, tuple]] = {}
     for domain in domains:
         gpl_target = None
@@ -286,7 +288,7 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
                 gpl_target = float(med[-1])
             cells = [_q(med, q25, q75, k - 1) if k <= len(ks) else "" for k in (1, 3, 6)]
             seeds = len({a["seed"] for a in attempts if a["entry"] == entry})
-            lines.append(f"| {domain} | {entry} ({variant}) | {per.shape[0]} x {seeds} | {' | '.join(cells)} | | | | | |")
+            lines.append(f"| {domain} | {entry} ({variant}) | {per.shape[0]} x {seeds} | {' | '.join(cells)} | | | | | | |")
         for method in sorted({c.job.method for c in curves if c.job.domain == domain}):
             mine = [c for c in curves if c.job.domain == domain and c.job.method == method]
             budget = min(len(c.completion) for c in mine)
@@ -296,8 +298,10 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
             at = {p: i for i, p in enumerate(points)}
             cells = [_q(s.median, s.q25, s.q75, at[p]) if p in at else "" for p in (1, 3, 6, 10, 100, 1000)]
             reach = "" if gpl_target is None else _first_reach(points, s.median, gpl_target, budget)
+            stops = [c.solved_at for c in mine if c.solved_at is not None]
+            solved = f"{len(stops)} of {len(mine)}" + (f", {int(np.median(stops))}" if stops else "")
             lines.append(f"| {domain} | {method} | {len(mine)} | {' | '.join(cells)} | "
-                         f"{_q(s.median, s.q25, s.q75, len(points) - 1)} | {reach} |")
+                         f"{_q(s.median, s.q25, s.q75, len(points) - 1)} | {reach} | {solved} |")
         fig_rows[domain] = rows
     seconds = sum(c.seconds for c in curves)
     lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "

@@ -121,6 +121,7 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md
+    assert md.count("| 0 of 2 |") == 2  # no task solved in 3 trajectories, by either method
     assert (tmp_path / "report" / "sample-complexity.png").stat().st_size > 5000
 
 
