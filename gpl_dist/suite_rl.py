@@ -106,17 +106,22 @@ def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
     expect(isinstance(ppo, dict), "ppo", "expected a mapping of PPO settings")
     for domain in (k for k in ppo if k in tasks):
         expect(isinstance(ppo[domain], dict), f"ppo.{domain}", "expected a mapping of PPO settings")
-    fields = {f.name for f in dataclasses.fields(PPOSettings)}
-    counts = {"n_envs": 1, "n_steps": 0, "batch_size": 1, "n_epochs": 1}  # whole numbers, and their least value
+    types = {f.name: str(f.type) for f in dataclasses.fields(PPOSettings)}  # "int", "float" or "bool"
+    least = {"n_envs": 1, "n_steps": 0, "batch_size": 2, "n_epochs": 1, "value_hidden": 1}  # SB3 wants minibatches > 1
     overrides = [("ppo.", {k: v for k, v in ppo.items() if k not in tasks})]
     overrides += [(f"ppo.{d}.", ppo[d]) for d in ppo if d in tasks]
     for prefix, settings in overrides:
         for key, value in settings.items():
-            expect(key in fields, f"{prefix}{key}", f"unknown PPO setting (known: {', '.join(sorted(fields))}, or a domain)")
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-            if key in counts:
-                ok = isinstance(value, int) and not isinstance(value, bool) and value >= counts[key]
-            expect(ok, f"{prefix}{key}", f"expected {'a whole number >= ' + str(counts[key]) if key in counts else 'a number'}")
+            expect(key in types, f"{prefix}{key}", f"unknown PPO setting (known: {', '.join(sorted(types))}, or a domain)")
+            kind = types[key]
+            if kind == "bool":
+                expect(isinstance(value, bool), f"{prefix}{key}", "expected true or false")
+            elif kind == "int":
+                ok = isinstance(value, int) and not isinstance(value, bool) and value >= least.get(key, 0)
+                expect(ok, f"{prefix}{key}", f"expected a whole number >= {least.get(key, 0)}")
+            else:
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0
+                expect(ok, f"{prefix}{key}", "expected a number >= 0")
     return RLPlan(tasks, tuple(seeds), raw["trajectories"], dict(pretrained), attempts_from, dict(ppo))
 
 
@@ -148,6 +153,12 @@ def result_path(out: str | Path, key: str) -> Path:
     return Path(out) / "rl" / f"{key}.json"
 
 
+def is_current(out: str | Path, job, settings) -> bool:
+    """Whether ``job``'s result is written and was made with ``settings`` (``learner.rl.PPOSettings``)."""
+    path = result_path(out, job.key)
+    return path.is_file() and json.loads(path.read_text()).get("settings") == dataclasses.asdict(settings)
+
+
 def write_result(out: str | Path, key: str, payload: dict) -> Path:
     """Write a job's result atomically (a killed writer leaves no half file)."""
     path = result_path(out, key)
@@ -158,13 +169,21 @@ def write_result(out: str | Path, key: str, payload: dict) -> Path:
     return path
 
 
+class NotTrainedYet(ConfigError):
+    """A suite entry the RL section reads has not finished training."""
+
+
 def trained_run_dir(out: str | Path, entry: str) -> Path:
-    """The seed-0 run of a suite entry, which must have finished training."""
-    from learner.checkpoint import LATEST
+    """The seed-0 run of a suite entry, which must have finished training (all its rounds)."""
+    from gpl_dist.config import load_config
+    from learner.checkpoint import LATEST, load_checkpoint
 
     run_dir = Path(out) / entry / "seed0"
-    if not (run_dir / "checkpoints" / LATEST).is_file():
-        raise ConfigError(f"{run_dir} has no trained policy yet: run 'gpl-dist suite run ... --only {entry} --seeds 0' first")
+    ckpt = run_dir / "checkpoints" / LATEST
+    rounds = load_config(run_dir / "config.yaml").training.num_rounds if ckpt.is_file() else 0
+    if not ckpt.is_file() or load_checkpoint(ckpt).round_index + 1 < rounds:
+        raise NotTrainedYet(f"{run_dir} has not finished training yet: run 'gpl-dist suite run ... --only {entry} "
+                            "--seeds 0' first")
     return run_dir
 
 
@@ -203,19 +222,19 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     """
     from learner.rl import run_rl_job
 
-    settings = {d: plan.settings(d) for d in plan.tasks}
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
     todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
     ran = 0
     for job in todo_attempts:
         try:
             write_result(out, job.key, run_attempts_job(job, plan, out))
-        except ConfigError as err:  # its entry is not trained yet: the RL jobs do not need it
+        except NotTrainedYet as err:  # the RL jobs do not need it
             log(f"[rl] {job.key} left for later: {err}")
             continue
         ran += 1
         log(f"[rl] {job.key} written")
-    jobs = [j for j in rl_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
+    settings = {d: plan.settings(d) for d in plan.tasks}
+    jobs = [j for j in rl_jobs(plan) if keep(j.domain) and not is_current(out, j, settings[j.domain])]
     weights = {d: pretrained_weights(out, plan.pretrained[d]) for d in {j.domain for j in jobs if j.method == "rl-finetune"}}
     done = sum(keep(j.domain) for j in rl_jobs(plan)) - len(jobs)
     log(f"[rl] {len(jobs)} RL job(s) to run ({done} already done)")

@@ -22,6 +22,7 @@ and torch's); one torch thread per job.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import time
 import warnings
 from dataclasses import dataclass
@@ -115,9 +116,10 @@ class RLCurve:
         job: the job.
         completion: float ``(trajectories,)`` the final completion of each training trajectory, in order.
         success: bool ``(trajectories,)`` whether each solved the task.
-        env_steps: env steps taken (the budget's trajectories, whole).
+        env_steps: env steps taken (the budget's trajectories, whole, and the rest of the last round).
         seconds: wall time.
         solved_at: trajectories run when updates stopped (``PPOSettings.stop_when_solved``), else None.
+        settings: the ``PPOSettings`` it ran with, as a dict (a result made with others is redone).
     """
 
     job: RLJob
@@ -126,17 +128,19 @@ class RLCurve:
     env_steps: int
     seconds: float
     solved_at: int | None = None
+    settings: dict | None = None
 
     def to_json(self) -> dict:
         """The curve as JSON (``from_json`` reads it back)."""
         return {"job": self.job.__dict__, "completion": list(self.completion), "success": list(self.success),
-                "env_steps": self.env_steps, "seconds": self.seconds, "solved_at": self.solved_at}
+                "env_steps": self.env_steps, "seconds": self.seconds, "solved_at": self.solved_at,
+                "settings": self.settings}
 
     @classmethod
     def from_json(cls, data: dict) -> "RLCurve":
         return cls(RLJob(**data["job"]), tuple(float(x) for x in data["completion"]),
                    tuple(bool(x) for x in data["success"]), int(data["env_steps"]), float(data["seconds"]),
-                   data.get("solved_at"))
+                   data.get("solved_at"), data.get("settings"))
 
 
 class TaskFeatures(nn.Module):
@@ -207,18 +211,23 @@ def _features_class(observation_space, **kwargs):
 class CompletionRecorder(gymnasium.Wrapper):
     """Records each episode's final ``info["completion"]`` and ``info["success"]``; copies of a task
     may share one pair of lists (``completion``, ``success``), which then hold every copy's
-    episodes in the order they end."""
+    episodes in the order they end. ``horizon_is_terminal``: the time limit ends the episode as
+    ``terminated`` (so PPO adds no value estimate after the last step, as Monte-Carlo returns)."""
 
-    def __init__(self, env: gymnasium.Env, completion: list[float] | None = None, success: list[bool] | None = None):
+    def __init__(self, env: gymnasium.Env, completion: list[float] | None = None, success: list[bool] | None = None,
+                 horizon_is_terminal: bool = False):
         super().__init__(env)
         self.completion: list[float] = [] if completion is None else completion
         self.success: list[bool] = [] if success is None else success
+        self.horizon_is_terminal = horizon_is_terminal
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         if terminated or truncated:
             self.completion.append(float(info.get("completion", 0.0)))
             self.success.append(bool(info.get("success", False)))
+            if self.horizon_is_terminal:
+                terminated, truncated = True, False
         return obs, reward, terminated, truncated, info
 
 
@@ -290,7 +299,7 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
     network = task_network(domain, weights, seed, policy_batchnorm)
     completion: list[float] = []
     success: list[bool] = []
-    copies = [CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id), completion, success)
+    copies = [CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id), completion, success, True)
               for _ in range(settings.n_envs)]
     env = DummyVecEnv([_returns(e) for e in copies])  # SB3 resets copy k with seed + k
     if weights is None:
@@ -324,32 +333,41 @@ def all_copies_solved(success: list[bool], n_envs: int) -> bool:
     return len(success) >= n_envs and all(success[-n_envs:])
 
 
+def budget_callback(log: CompletionRecorder, budget: int, settings: PPOSettings, solved_at: list[int]):
+    """SB3 callback: ends learning once ``budget`` episodes have ended; at the end of each rollout
+    (before its update) it stops updates if every copy solved the task (``stop_when_solved``),
+    appending the number of episodes run then to ``solved_at``."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Budget(BaseCallback):
+        def _on_step(self) -> bool:
+            return len(log.completion) < budget
+
+        def _on_rollout_end(self) -> None:
+            if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
+                solved_at.append(len(log.success))
+                self.model.updating = False  # type: ignore[attr-defined]  # the StoppablePPO of make_ppo
+
+    return Budget()
+
+
 def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
                policy_batchnorm: bool = False) -> RLCurve:
     """PPO on ``job``'s task until ``job.trajectories`` episodes have ended (``make_ppo``); the copies
-    end their episodes together, so the last update may run up to ``n_envs - 1`` more, which the
-    curve leaves out."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
+    end their episodes together, so the last round may end up to ``n_envs - 1`` more (in
+    ``env_steps``, not in the curve)."""
     torch.set_num_threads(1)
     model, log = make_ppo(job, settings, weights, policy_batchnorm)
-
     solved_at: list[int] = []
-
-    class _Budget(BaseCallback):
-        def _on_step(self) -> bool:
-            return len(log.completion) < job.trajectories
-
-        def _on_rollout_end(self) -> None:  # before the update of this rollout
-            if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
-                solved_at.append(len(log.success))
-                model.updating = False
-
     start = time.perf_counter()
     steps = get_domain(job.domain).steps_per_attempt
-    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps, callback=_Budget())
+    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps,
+                callback=budget_callback(log, job.trajectories, settings, solved_at))
+    if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
+        solved_at.append(len(log.success))  # solved in the last round, which the budget ended before its update
     return RLCurve(job, tuple(log.completion[: job.trajectories]), tuple(log.success[: job.trajectories]),
-                   int(model.num_timesteps), time.perf_counter() - start, solved_at[0] if solved_at else None)
+                   int(model.num_timesteps), time.perf_counter() - start, solved_at[0] if solved_at else None,
+                   dataclasses.asdict(settings))
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@ from a DAgger policy, and the suite's rl section end to end (serial and on Ray).
 
 import json
 
+import gymnasium
 import numpy as np
 import pytest
 import torch
@@ -15,17 +16,19 @@ from gpl_dist.suite import load_suite, run_suite
 from gpl_dist.suite_rl import load_results, rl_jobs, run_rl_plan
 from learner.evaluate import load_trained_policy
 from learner.rl import (
+    CompletionRecorder,
     PPOSettings,
     RLJob,
     _instruction_only,
     all_copies_solved,
+    budget_callback,
     log_points,
     make_ppo,
     run_rl_job,
     smoothed,
 )
 
-SMALL = PPOSettings(n_envs=2, n_steps=128, batch_size=64, n_epochs=1)
+SMALL = PPOSettings(n_envs=2, batch_size=64, n_epochs=1)  # one episode of each copy per update
 
 
 @pytest.mark.parametrize("domain, task", [("multiroom", 69), ("relocation", 11)])
@@ -45,14 +48,29 @@ def test_updates_stop_once_every_copy_solved_the_task_and_sampling_goes_on():
     assert all_copies_solved([False, True, True], 2) and not all_copies_solved([True, False], 2)
     assert not all_copies_solved([True], 2)  # not every copy has ended an episode yet
     model, log = make_ppo(RLJob("rl-scratch", "multiroom", 69, 0, 4), SMALL)
+    solved_at: list[int] = []
+    callback = budget_callback(log, 10_000, SMALL, solved_at)
+    callback.init_callback(model)
+    log.success[:] = [True, False]
+    callback.on_rollout_end()
+    assert model.updating and solved_at == []  # one copy failed: PPO goes on updating
+    log.success[:] = [False, True, True]
+    callback.on_rollout_end()
+    assert not model.updating and solved_at == [3]
     before = [p.detach().clone() for p in model.policy.parameters()]
-    model.updating = False
-    model.learn(total_timesteps=2 * SMALL.n_steps * SMALL.n_envs)
+    model.learn(total_timesteps=2 * 100 * SMALL.n_envs)
     assert len(log.completion) >= 4  # it kept sampling episodes...
     assert all(torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))  # ...with the same policy
     model.updating = True
-    model.learn(total_timesteps=SMALL.n_steps * SMALL.n_envs)
+    model.learn(total_timesteps=100 * SMALL.n_envs)
     assert not all(torch.equal(a, b) for a, b in zip(before, model.policy.parameters()))
+
+
+def test_the_horizon_ends_an_rl_episode_as_terminal():
+    env = CompletionRecorder(gymnasium.make("gpl/MultiRoom-v0", task_id=69), horizon_is_terminal=True)
+    env.reset(seed=0)
+    ends = [env.step(0)[2:4] for _ in range(100)]
+    assert ends[:99] == [(False, False)] * 99 and ends[99] == (True, False) and len(env.completion) == 1
 
 
 @pytest.fixture(scope="module")
@@ -101,7 +119,7 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     path = _suite(tmp_path)
     suite = load_suite(path)
     out = tmp_path / "out"
-    with pytest.raises(ConfigError, match="no trained policy yet"):
+    with pytest.raises(ConfigError, match="has not finished training yet"):
         run_rl_plan(suite.rl, out, serial=True, log=lambda s: None)
     run_suite(suite, out, serial=True, progress=False)
     address = ray_cluster.get_runtime_context().gcs_address
@@ -116,8 +134,11 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     status = capsys.readouterr().out
     assert "rl: 4 of 4 RL jobs done" in status and "rl: 1 of 1 GPL/GPR attempt sets done" in status
     (out / "rl" / "rl-scratch" / "multiroom" / "task69-seed0.json").unlink()  # as if killed before writing it
+    stale = out / "rl" / "rl-finetune" / "multiroom" / "task180-seed0.json"
+    stale.write_text(json.dumps({**json.loads(stale.read_text()), "settings": {"n_envs": 7}}))  # other PPO settings
     assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
-    assert "1 RL job(s) ran" in capsys.readouterr().out
+    assert "2 RL job(s) ran" in capsys.readouterr().out
+    assert json.loads(stale.read_text())["settings"]["n_envs"] == 2
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md
@@ -129,7 +150,7 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
     plan = load_suite(_suite(tmp_path, pretrained={}, tasks={"multiroom": [69]})).rl
     lines: list[str] = []
     assert run_rl_plan(plan, tmp_path / "out", serial=True, log=lines.append) == 1  # the one rl-scratch job
-    assert any("attempts/gpl-seed0 left for later" in s and "no trained policy yet" in s for s in lines), lines
+    assert any("attempts/gpl-seed0 left for later" in s and "has not finished training yet" in s for s in lines), lines
     curves, attempts = load_results(tmp_path / "out")
     assert [c.job.key for c in curves] == ["rl-scratch/multiroom/task69-seed0"] and attempts == []
 
@@ -142,6 +163,10 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
     ({"ppo": {"n_envs": 2.5}}, r"ppo\.n_envs: expected a whole number >= 1"),
     ({"ppo": {"multiroom": {"n_steps": -1}}}, r"ppo\.multiroom\.n_steps: expected a whole number >= 0"),
     ({"ppo": {"multiroom": 3}}, "expected a mapping of PPO settings"),
+    ({"ppo": {"stop_when_solved": 0}}, r"ppo\.stop_when_solved: expected true or false"),
+    ({"ppo": {"batch_size": 1}}, r"ppo\.batch_size: expected a whole number >= 2"),
+    ({"ppo": {"value_hidden": 64.5}}, r"ppo\.value_hidden: expected a whole number"),
+    ({"ppo": {"learning_rate": True}}, r"ppo\.learning_rate: expected a number"),
     ({"colour": 1}, "unknown key"),
     ({"trajectories": 0}, "expected an int >= 1"),
 ])
