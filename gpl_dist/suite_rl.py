@@ -220,14 +220,16 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     the RL jobs, task by task: one after another with ``serial``, else each a Ray task (local Ray,
     or the cluster at ``address``).
     """
+    from gpl_dist.suite import code_commit
     from learner.rl import run_rl_job
 
+    commit = code_commit()  # read once: a commit made while the jobs run does not relabel them
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
     todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
     ran = 0
     for job in todo_attempts:
         try:
-            write_result(out, job.key, run_attempts_job(job, plan, out))
+            write_result(out, job.key, {**run_attempts_job(job, plan, out), "commit": commit})
         except NotTrainedYet as err:  # the RL jobs do not need it
             log(f"[rl] {job.key} left for later: {err}")
             continue
@@ -240,7 +242,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     log(f"[rl] {len(jobs)} RL job(s) to run ({done} already done)")
 
     def finished(job, curve) -> None:
-        write_result(out, job.key, curve.to_json())
+        write_result(out, job.key, {**curve.to_json(), "commit": commit})
         tail = curve.completion[-max(1, len(curve.completion) // 10):]
         solved = f", updates stopped at {curve.solved_at} (solved)" if curve.solved_at else ""
         log(f"[rl] {job.key}: {len(curve.completion)} trajectories in {curve.seconds:.0f}s, "
@@ -270,6 +272,16 @@ def load_results(out: str | Path) -> tuple[list, list[dict]]:
         else:
             curves.append(RLCurve.from_json(data))
     return curves, attempts
+
+
+def result_commits(out: str | Path) -> dict[str, int]:
+    """How many results under ``OUT/rl`` each code commit made (``unknown`` for results without one)."""
+    root = Path(out) / "rl"
+    counts: dict[str, int] = {}
+    for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
+        commit = json.loads(path.read_text()).get("commit", "unknown")
+        counts[commit] = counts.get(commit, 0) + 1
+    return counts
 
 
 def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[str, Path | None]:
@@ -323,8 +335,10 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
                          f"{_q(s.median, s.q25, s.q75, len(points) - 1)} | {reach} | {solved} |")
         fig_rows[domain] = rows
     seconds = sum(c.seconds for c in curves)
+    made_by = ", ".join(f"`{c}` ({n})" for c, n in sorted(result_commits(suite_out).items()))
     lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "
-              "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections."]
+              "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections.", "",
+              f"Code commits of these results (results each): {made_by}."]
     png = Path(out) / "sample-complexity.png"
     _plot(fig_rows, png)
     return "\n".join(lines), png

@@ -143,6 +143,7 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md
     assert md.count("| 0 of 2 |") == 2  # no task solved in 3 trajectories, by either method
+    assert "Code commits of these results (results each): `" in md and "(5)" in md  # 4 curves and GPL's points, one run
     assert (tmp_path / "report" / "sample-complexity.png").stat().st_size > 5000
 
 
