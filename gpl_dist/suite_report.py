@@ -314,7 +314,8 @@ def effort_markdown(results: list[RunResult], evaluation: str = "test") -> str:
         for key, _ in _EFFORT:
             values = [r.effort[key] for r in mine if r.effort and r.effort.get(key) is not None]  # type: ignore[index]
             cells.append(f"{statistics.fmean(values):.3f}" if values else "—")
-        lines.append(f"| {entry} | " + " | ".join(cells) + f" | {len(mine)} |")
+        seeds = str(len(mine)) if mine else "none: evaluated before the effort was recorded (`gpl-dist eval` again)"
+        lines.append(f"| {entry} | " + " | ".join(cells) + f" | {seeds} |")
     return "\n".join(lines)
 
 

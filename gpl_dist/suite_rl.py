@@ -299,8 +299,9 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
              "scratch and fine-tuned from the DAgger-trained instruction-only policy, each training trajectory's final "
              "completion (mean over the last tenth of the trajectories up to each point); GPL and GPR after k attempts "
              "(k - 1 corrections) at k trajectories. Median over tasks, interquartile range in brackets. PPO stops "
-             "updating once every copy of the task solved it in one round of episodes (the authors' rule); the last "
-             "column counts those tasks and the median trajectories at which it happened. Made by "
+             "updating once every copy of the task solved it in one round of episodes (where the authors' expert "
+             "training stopped; the rest of the budget samples that policy); the last column counts those tasks and "
+             "the median trajectories at which it happened. Made by "
              f"`gpl-dist suite rl configs/suites/paper.yaml --out {suite_out}`.", "",
              "| domain | method | tasks x seeds | after 1 | 3 | 6 | 10 | 100 | 1000 | last "
              "| trajectories to reach GPL after 5 corrections | solved (updates stopped), median trajectories |",
@@ -323,11 +324,11 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
         for method in sorted({c.job.method for c in curves if c.job.domain == domain}):
             mine = [c for c in curves if c.job.domain == domain and c.job.method == method]
             budget = min(len(c.completion) for c in mine)
-            points = log_points(budget)
+            points = tuple(sorted(set(log_points(budget)) | {p for p in _COLUMNS if p <= budget}))
             s = summarize(mine, points)
             rows[method] = (points, np.array(s.median), np.array(s.q25), np.array(s.q75), "curve")
             at = {p: i for i, p in enumerate(points)}
-            cells = [_q(s.median, s.q25, s.q75, at[p]) if p in at else "" for p in (1, 3, 6, 10, 100, 1000)]
+            cells = [_q(s.median, s.q25, s.q75, at[p]) if p in at else "" for p in _COLUMNS]
             reach = "" if gpl_target is None else _first_reach(points, s.median, gpl_target, budget)
             stops = [c.solved_at for c in mine if c.solved_at is not None]
             solved = f"{len(stops)} of {len(mine)}" + (f", {int(np.median(stops))}" if stops else "")
@@ -342,6 +343,10 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
     png = Path(out) / "sample-complexity.png"
     _plot(fig_rows, png)
     return "\n".join(lines), png
+
+
+#: trajectory counts of the table's columns
+_COLUMNS = (1, 3, 6, 10, 100, 1000)
 
 
 def _q(med, q25, q75, i: int) -> str:
@@ -360,6 +365,7 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     fig, axes = plt.subplots(1, len(fig_rows), figsize=(5.5 * len(fig_rows), 3.8), dpi=110, squeeze=False)
     for ax, (domain, rows) in zip(axes[0], fig_rows.items()):
@@ -370,12 +376,15 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
             else:
                 ax.errorbar(xs, med, yerr=[med - q25, q75 - med], marker="o", capsize=3, label=name)
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))  # 1, 10, 100, not 10^0
+        ax.xaxis.set_minor_formatter(FuncFormatter(lambda x, _: ""))
+        ax.set_xlim(0.8, 1.25 * max([10, *(max(xs) for xs, *_ in rows.values())]))  # at least one decade
         ax.set_ylim(0, 1.02)
         ax.set_xlabel("trajectories on the task")
         ax.set_ylabel("completion (median over tasks)")
         ax.set_title(domain)
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8)
+        ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png)

@@ -187,3 +187,17 @@ def test_curves_are_read_at_log_spaced_points():
     assert log_points(2000)[:4] == (1, 2, 3, 4) and log_points(2000)[-1] == 2000
     c = [0.0] * 9 + [1.0]
     assert smoothed(c, (1, 10)) == [0.0, 1.0] and np.isnan(smoothed(c, (11,))[0])
+
+
+def test_the_table_reads_every_named_column_of_a_long_curve(tmp_path):
+    from gpl_dist.suite_rl import sample_complexity_section, write_result
+    from learner.rl import RLCurve
+
+    ramp = tuple(min(1.0, i / 1000) for i in range(2000))  # completion rises to 1 by trajectory 1000
+    for t in (1, 2):
+        curve = RLCurve(RLJob("rl-scratch", "multiroom", t, 0, 2000), ramp, (False,) * 2000, 200_000, 1.0)
+        write_result(tmp_path, curve.job.key, {**curve.to_json(), "commit": "abc1234"})
+    md, png = sample_complexity_section(tmp_path, tmp_path / "report")
+    row = next(line for line in md.splitlines() if line.startswith("| multiroom | rl-scratch |")).split("|")
+    assert row[8].strip().startswith("0.09") and row[9].strip().startswith("0.95")  # at 100 and at 1000 trajectories
+    assert "`abc1234` (2)" in md and png is not None and png.is_file()

@@ -208,3 +208,15 @@ def test_held_out_phrasings_are_an_evaluation_and_older_records_still_count(tmp_
     assert {r.evaluation for r in collect_results(out)} == {"test", "test-heldout-phrasings"}
     with pytest.raises(ConfigError, match="phrasings"):
         load_suite(write_suite(tmp_path / "bad.yaml", {"a": entry()}, {"test": {**ev, "phrasings": "mumbled"}}))
+
+
+def test_the_effort_table_says_when_a_run_was_evaluated_before_effort_was_recorded(tmp_path):
+    from gpl_dist.suite_report import RunResult, effort_markdown
+
+    def result(entry, effort):
+        return RunResult(entry, 0, tmp_path, "test", (0.1, 0.5), tmp_path / "eval.json", (), ("abc",), 1.0, 1.0, effort)
+
+    md = effort_markdown([result("old", None), result("new", {"corrections_to_solve": 2.0, "words_per_solved_task": 6.0,
+                                                                "unsolved_fraction": 0.5, "completion_auc": 0.3})])
+    assert "| new | 2.000 | 6.000 | 0.500 | 0.300 | 1 |" in md
+    assert "| old | — | — | — | — | none: evaluated before the effort was recorded" in md
