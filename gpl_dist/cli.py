@@ -138,11 +138,13 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
         held = f"; {holder.describe()}" if holder else ""
         print(f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})")
     if suite.rl is not None:
-        from gpl_dist.suite_rl import attempts_jobs, result_path, rl_jobs
+        from gpl_dist.suite_rl import attempts_jobs, is_current, result_path, rl_jobs
 
-        for what, jobs in (("RL jobs", rl_jobs(suite.rl)), ("GPL/GPR attempt sets", attempts_jobs(suite.rl))):
-            done = sum(result_path(args.out, j.key).is_file() for j in jobs)
-            print(f"rl: {done} of {len(jobs)} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
+        rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
+        counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain)) for j in jobs), len(jobs)),
+                  ("GPL/GPR attempt sets", sum(result_path(args.out, j.key).is_file() for j in points), len(points)))
+        for what, done, total in counts:  # an RL result made with other PPO settings is not done
+            print(f"rl: {done} of {total} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
     return 0
 
 

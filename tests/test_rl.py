@@ -136,6 +136,8 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     (out / "rl" / "rl-scratch" / "multiroom" / "task69-seed0.json").unlink()  # as if killed before writing it
     stale = out / "rl" / "rl-finetune" / "multiroom" / "task180-seed0.json"
     stale.write_text(json.dumps({**json.loads(stale.read_text()), "settings": {"n_envs": 7}}))  # other PPO settings
+    assert main(["suite", "status", str(path), "--out", str(out)]) == 0
+    assert "rl: 2 of 4 RL jobs done" in capsys.readouterr().out  # neither the missing nor the stale one
     assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
     assert "2 RL job(s) ran" in capsys.readouterr().out
     assert json.loads(stale.read_text())["settings"]["n_envs"] == 2
