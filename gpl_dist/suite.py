@@ -280,14 +280,13 @@ def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
 
 def run_state(run: SuiteRun, suite: Suite) -> str:
     """``done``, ``evaluate`` (trained), ``resume`` (started) or ``new``, read from the run's files."""
-    from learner.checkpoint import LATEST, load_checkpoint
+    from learner.checkpoint import rounds_trained
 
     cfg = run.config(suite)
     _check_unchanged(run, cfg)
-    ckpt = run.run_dir / "checkpoints" / LATEST
     if not any((run.run_dir / name).exists() for name in ("config.yaml", "checkpoints", "buffer", "metrics.jsonl")):
         return "new"  # nothing but lease files: a driver stopped before writing anything
-    if not ckpt.is_file() or load_checkpoint(ckpt).round_index + 1 < cfg.training.num_rounds:
+    if rounds_trained(run.run_dir) < cfg.training.num_rounds:
         return "resume"
     done = (read_record(run.run_dir) or {}).get("evaluations", {})
     for name, ev in done.items():

@@ -176,12 +176,11 @@ class NotTrainedYet(ConfigError):
 def trained_run_dir(out: str | Path, entry: str) -> Path:
     """The seed-0 run of a suite entry, which must have finished training (all its rounds)."""
     from gpl_dist.config import load_config
-    from learner.checkpoint import LATEST, load_checkpoint
+    from learner.checkpoint import rounds_trained
 
     run_dir = Path(out) / entry / "seed0"
-    ckpt = run_dir / "checkpoints" / LATEST
-    rounds = load_config(run_dir / "config.yaml").training.num_rounds if ckpt.is_file() else 0
-    if not ckpt.is_file() or load_checkpoint(ckpt).round_index + 1 < rounds:
+    trained = rounds_trained(run_dir)
+    if not trained or trained < load_config(run_dir / "config.yaml").training.num_rounds:
         raise NotTrainedYet(f"{run_dir} has not finished training yet: run 'gpl-dist suite run ... --only {entry} "
                             "--seeds 0' first")
     return run_dir
@@ -236,10 +235,10 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
         ran += 1
         log(f"[rl] {job.key} written")
     settings = {d: plan.settings(d) for d in plan.tasks}
-    jobs = [j for j in rl_jobs(plan) if keep(j.domain) and not is_current(out, j, settings[j.domain])]
+    kept = [j for j in rl_jobs(plan) if keep(j.domain)]
+    jobs = [j for j in kept if not is_current(out, j, settings[j.domain])]
     weights = {d: pretrained_weights(out, plan.pretrained[d]) for d in {j.domain for j in jobs if j.method == "rl-finetune"}}
-    done = sum(keep(j.domain) for j in rl_jobs(plan)) - len(jobs)
-    log(f"[rl] {len(jobs)} RL job(s) to run ({done} already done)")
+    log(f"[rl] {len(jobs)} RL job(s) to run ({len(kept) - len(jobs)} already done)")
 
     def finished(job, curve) -> None:
         write_result(out, job.key, {**curve.to_json(), "commit": commit})
@@ -259,29 +258,23 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     return ran + len(jobs)
 
 
-def load_results(out: str | Path) -> tuple[list, list[dict]]:
-    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl``."""
+def load_results(out: str | Path) -> tuple[list, list[dict], dict[str, int]]:
+    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl``, and how
+    many of them each code commit made (``unknown`` for results without one)."""
     from learner.rl import RLCurve
 
     root = Path(out) / "rl"
     curves, attempts = [], []
+    commits: dict[str, int] = {}
     for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
         data = json.loads(path.read_text())
+        commit = data.get("commit", "unknown")
+        commits[commit] = commits.get(commit, 0) + 1
         if path.parent.name == "attempts":
             attempts.append(data)
         else:
             curves.append(RLCurve.from_json(data))
-    return curves, attempts
-
-
-def result_commits(out: str | Path) -> dict[str, int]:
-    """How many results under ``OUT/rl`` each code commit made (``unknown`` for results without one)."""
-    root = Path(out) / "rl"
-    counts: dict[str, int] = {}
-    for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
-        commit = json.loads(path.read_text()).get("commit", "unknown")
-        counts[commit] = counts.get(commit, 0) + 1
-    return counts
+    return curves, attempts, commits
 
 
 def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[str, Path | None]:
@@ -291,7 +284,7 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
 
     from learner.rl import log_points, summarize
 
-    curves, attempts = load_results(suite_out)
+    curves, attempts, commits = load_results(suite_out)
     if not curves and not attempts:
         return "", None
     domains = sorted({c.job.domain for c in curves} | {a["domain"] for a in attempts})
@@ -336,7 +329,7 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[s
                          f"{_q(s.median, s.q25, s.q75, len(points) - 1)} | {reach} | {solved} |")
         fig_rows[domain] = rows
     seconds = sum(c.seconds for c in curves)
-    made_by = ", ".join(f"`{c}` ({n})" for c, n in sorted(result_commits(suite_out).items()))
+    made_by = ", ".join(f"`{c}` ({n})" for c, n in sorted(commits.items()))
     lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "
               "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections.", "",
               f"Code commits of these results (results each): {made_by}."]

@@ -109,6 +109,12 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     return Checkpoint(**raw)
 
 
+def rounds_trained(run_dir: str | os.PathLike) -> int:
+    """How many DAgger rounds a run has trained: its latest checkpoint's round + 1, 0 without one."""
+    latest = Path(run_dir) / "checkpoints" / LATEST
+    return load_checkpoint(latest).round_index + 1 if latest.is_file() else 0
+
+
 def load_model_state(model: torch.nn.Module, ckpt: Checkpoint, source: str | os.PathLike) -> None:
     """Load ``ckpt``'s weights into ``model``; ``CheckpointError`` when they belong to another architecture."""
     try:

@@ -124,7 +124,7 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     run_suite(suite, out, serial=True, progress=False)
     address = ray_cluster.get_runtime_context().gcs_address
     assert run_rl_plan(suite.rl, out, address=address, log=lambda s: None) == 1 + 4  # GPL's points, 2 methods x 2 tasks
-    curves, attempts = load_results(out)
+    curves, attempts, _ = load_results(out)
     assert sorted(c.job.key for c in curves) == sorted(j.key for j in rl_jobs(suite.rl)) and len(curves) == 4
     assert all(len(c.completion) == 3 for c in curves)
     assert attempts[0]["tasks"] == [69, 180] and np.array(attempts[0]["completion"]).shape == (2, 6)
@@ -154,7 +154,7 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
     lines: list[str] = []
     assert run_rl_plan(plan, tmp_path / "out", serial=True, log=lines.append) == 1  # the one rl-scratch job
     assert any("attempts/gpl-seed0 left for later" in s and "has not finished training yet" in s for s in lines), lines
-    curves, attempts = load_results(tmp_path / "out")
+    curves, attempts, _ = load_results(tmp_path / "out")
     assert [c.job.key for c in curves] == ["rl-scratch/multiroom/task69-seed0"] and attempts == []
 
 
