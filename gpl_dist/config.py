@@ -108,7 +108,9 @@ class TrainingConfig:
     num_threads: int = 1
     """Torch threads per learner process; more stall beside other busy processes, sum irreproducibly (0: cores / learners)."""
     num_learners: int = 1
-    """Data-parallel learner processes on the driver's machine, batch_size split among them (0: one per core)."""
+    """Data-parallel learner processes, batch_size split among them (0: one per core of the driver's machine)."""
+    engine: str = "processes"
+    """Where the learners run: processes on the driver's machine, or ray-train (a Ray Train group anywhere on the cluster)."""
 
 
 @dataclass(frozen=True)
@@ -280,6 +282,8 @@ MAX_CORRECTIONS = 100
 _VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
              "mivoa", "mivoa_full_information", "gpr")
 _DEVICES = ("auto", "cpu", "cuda")
+#: where the learners run (``training.engine``): the driver's machine, or a Ray Train worker group
+ENGINES = ("processes", "ray-train")
 
 
 def _one_of(key: str, value: str, choices: tuple[str, ...], scope: str = "") -> tuple[bool, str]:
@@ -299,6 +303,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         _one_of("env.domain", cfg.env.domain, domain_names()),
         _one_of("model.variant", cfg.model.variant, _VARIANTS),
         _one_of("training.device", cfg.training.device, _DEVICES),
+        _one_of("training.engine", cfg.training.engine, ENGINES),
         _one_of("eval.phrasings", cfg.eval.phrasings, PHRASINGS),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
         (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
@@ -315,6 +320,8 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.training.states_per_chunk >= 1, "training.states_per_chunk must be at least 1"),
         (cfg.training.num_threads >= 0, "training.num_threads must be >= 0 (0 shares the cores out among the learners)"),
         (0 <= cfg.training.num_learners <= 64, "training.num_learners must be in 0..64 (0: one per available core)"),
+        (cfg.training.engine != "ray-train" or cfg.training.num_learners >= 1,
+         "training.num_learners must be at least 1 with training.engine=ray-train (0 counts this machine's cores)"),
         (0 <= cfg.eval.num_corrections <= MAX_CORRECTIONS,
          f"eval.num_corrections must be in 0..{MAX_CORRECTIONS}, got {cfg.eval.num_corrections}"),
         (len(cfg.eval.seeds) >= 1, "eval.seeds must name at least one seed"),

@@ -25,8 +25,12 @@ def _execute_task(run: SuiteRun, suite: Suite, commit: str) -> dict:
 
 def cpus_per_run(run: SuiteRun, suite: Suite) -> int:
     """CPUs one run holds on the cluster: its task (its driver and first learner), its further
-    data-parallel learner processes, and its rollout actors."""
+    data-parallel learner processes, or its Ray Train learners beside the task, and its rollout actors."""
+    from learner.ray_train import reserved_cpus
+
     cfg = run.config(suite)
+    if cfg.training.engine == "ray-train":
+        return 1 + reserved_cpus(cfg.training) + cfg.collection.num_workers
     return max(1, cfg.training.num_learners) + cfg.collection.num_workers
 
 

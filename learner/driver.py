@@ -241,6 +241,8 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     have been checked; a resumed run that has reached ``training.num_rounds`` changes nothing.
     """
     run_dir = Path(run_dir)
+    if serial and cfg.training.engine == "ray-train":
+        raise ConfigError("training.engine=ray-train trains on a Ray cluster: drop --serial, or use training.engine=processes")
     tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST
@@ -297,11 +299,17 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
 
 
 def _make_learner(cfg: RunConfig, model, on_ray: bool):
-    """The learner in this process (with its data-parallel helpers), or, on a Ray cluster whose
-    GPU is on another node, a Ray actor there (``learner.remote.placement``)."""
+    """The learner in this process (with its data-parallel helpers); on a Ray cluster, a Ray Train
+    group (``training.engine: ray-train``), or a Ray actor on a GPU node when this node has none
+    (``learner.remote.placement``)."""
     if on_ray:
         from learner import remote  # imports Ray: only for a run that uses it
 
+        if cfg.training.engine == "ray-train":
+            from learner.ray_train import RayTrainLearner, wants_gpu
+
+            use_gpu = wants_gpu(cfg.training.device, remote.cluster_gpus(), cfg.training.num_learners)
+            return RayTrainLearner(model, cfg.training, seed=cfg.seed, use_gpu=use_gpu)
         if remote.placement(cfg.training.device, torch.cuda.is_available(), remote.cluster_gpus()) == remote.GPU_ACTOR:
             log.info("training on a GPU of the Ray cluster (this node has none)")
             return remote.RemoteLearner(model, cfg.training, seed=cfg.seed)
@@ -336,9 +344,10 @@ def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id
                     address: str | None):
     if serial:
         return SerialCollector(cfg.env.domain, settings, root, run_id)
+    from learner.ray_train import reserved_cpus
     from workers.ray_pool import RayCollector  # Ray is imported only where a run uses it
     return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
-                        cfg.collection.max_unit_retries)
+                        cfg.collection.max_unit_retries, reserve_cpus=reserved_cpus(cfg.training))
 
 
 class _RoundLoop:

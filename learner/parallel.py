@@ -18,7 +18,7 @@ are averaged over the learners at the end of each round.
 The collective engine is gloo (``torch.distributed.ProcessGroupGloo``) on a device bound to
 127.0.0.1, with a file store in a private temporary directory: nothing listens beyond this machine
 (gloo's loopback port itself has no authentication, like any local service). Across nodes, a
-Ray cluster's learners would go through Ray Train instead (not built yet; see docs/scaling.md).
+Ray cluster's learners go through Ray Train instead (``learner.ray_train``).
 """
 
 from __future__ import annotations

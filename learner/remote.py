@@ -58,6 +58,19 @@ def _cpu(value):
     return value
 
 
+def train_from_state(learner, state: tuple[dict, dict | None, torch.Tensor], view):
+    """Train one round on ``learner`` from the driver's ``state`` (model, Adam, batch generator);
+    return the round's statistics and the new state, on the CPU. A round depends only on its
+    inputs, so retrying it after a failure is safe."""
+    model_state, optimizer_state, generator_state = state
+    learner.model.load_state_dict(model_state)
+    if optimizer_state is not None:
+        learner.load_optimizer_state(optimizer_state)
+    learner.generator.set_state(generator_state)
+    stats = learner.train_round(view)
+    return stats, (_cpu(learner.model.state_dict()), _cpu(learner.optimizer.state_dict()), learner.generator.get_state())
+
+
 class LearnerActorImpl:
     """What runs inside the actor: a learner that trains from a state and returns the new one."""
 
@@ -67,14 +80,7 @@ class LearnerActorImpl:
         self.learner = make_learner(model, cfg, seed)
 
     def train_round(self, state: tuple[dict, dict | None, torch.Tensor], view):
-        model_state, optimizer_state, generator_state = state
-        self.learner.model.load_state_dict(model_state)
-        if optimizer_state is not None:
-            self.learner.load_optimizer_state(optimizer_state)
-        self.learner.generator.set_state(generator_state)
-        stats = self.learner.train_round(view)
-        return stats, (_cpu(self.learner.model.state_dict()), _cpu(self.learner.optimizer.state_dict()),
-                       self.learner.generator.get_state())
+        return train_from_state(self.learner, state, view)
 
     def device(self) -> str:
         return str(next(self.learner.model.parameters()).device)
@@ -90,17 +96,55 @@ class _OptimizerState:
         return self.state if self.state is not None else {"state": {}, "param_groups": []}
 
 
-class RemoteLearner:
-    """The driver's handle on a ``LearnerActor``; implements ``gpl_dist.roles.Learner`` and exposes
-    ``model``, ``optimizer`` and ``generator`` as ``learner.trainer.Learner`` does."""
+class ShippedStateLearner:
+    """A learner that trains elsewhere from state the driver holds; implements
+    ``gpl_dist.roles.Learner`` and exposes ``model``, ``optimizer`` and ``generator`` as
+    ``learner.trainer.Learner`` does.
 
-    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0, num_gpus: float = 1.0):
-        import ray
+    The driver keeps a CPU replica of the model, the Adam state and the batch generator's state;
+    every round ``_train_elsewhere`` sends them with the training view and returns the new ones.
+    The driver therefore checkpoints, resumes and hands weights to the rollout actors exactly as
+    with a local learner.
+    """
 
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0):
         self.model = model
         self.cfg = cfg
         self.optimizer = _OptimizerState()
         self.generator = torch.Generator().manual_seed(seed)
+
+    def _train_elsewhere(self, state: tuple[dict, dict | None, torch.Tensor], view):
+        """``train_from_state`` run wherever this learner trains; returns its result."""
+        raise NotImplementedError
+
+    def load_optimizer_state(self, state: dict) -> None:
+        self.optimizer.state = state
+
+    def weights(self) -> dict:
+        from gpl_dist.models.gpl import state_dict_to_numpy
+        return state_dict_to_numpy(self.model)
+
+    def train_round(self, view, on_epoch=None):
+        state = (self.model.state_dict(), self.optimizer.state, self.generator.get_state())
+        stats, (model_state, optimizer_state, generator_state) = self._train_elsewhere(state, view)
+        self.model.load_state_dict(model_state)
+        self.optimizer.state = optimizer_state
+        self.generator.set_state(generator_state)
+        if on_epoch is not None:
+            on_epoch(self.cfg.num_epochs_per_round - 1, stats.loss, stats.accuracy)
+        return stats
+
+    def close(self) -> None:
+        """Release what trains elsewhere."""
+
+
+class RemoteLearner(ShippedStateLearner):
+    """The driver's handle on a ``LearnerActorImpl`` actor holding a GPU (``ShippedStateLearner``)."""
+
+    def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0, num_gpus: float = 1.0):
+        import ray
+
+        super().__init__(model, cfg, seed)
         # num_cpus=0: the rollout actors hold the CPUs (platform notes: the deadlock trap)
         # a round depends only on the state sent with it: a restarted actor retries it safely
         actor = ray.remote(num_cpus=0, num_gpus=num_gpus, max_restarts=1, max_task_retries=1)(LearnerActorImpl)
@@ -124,28 +168,13 @@ class RemoteLearner:
             raise ConfigError(f"the learner's Ray actor holds a GPU but its torch trains on {device} (a CPU-only "
                               "torch build on the GPU node?); install a CUDA torch there or use training.device=cpu")
 
-    def load_optimizer_state(self, state: dict) -> None:
-        self.optimizer.state = state
-
-    def weights(self) -> dict:
-        from gpl_dist.models.gpl import state_dict_to_numpy
-        return state_dict_to_numpy(self.model)
-
     def device(self) -> str:
         import ray
         return ray.get(self._actor.device.remote())
 
-    def train_round(self, view, on_epoch=None):
+    def _train_elsewhere(self, state, view):
         import ray
-
-        state = (self.model.state_dict(), self.optimizer.state, self.generator.get_state())
-        stats, (model_state, optimizer_state, generator_state) = ray.get(self._actor.train_round.remote(state, view))
-        self.model.load_state_dict(model_state)
-        self.optimizer.state = optimizer_state
-        self.generator.set_state(generator_state)
-        if on_epoch is not None:
-            on_epoch(self.cfg.num_epochs_per_round - 1, stats.loss, stats.accuracy)
-        return stats
+        return ray.get(self._actor.train_round.remote(state, view))
 
     def close(self) -> None:
         import ray

@@ -11,6 +11,8 @@ and prints one JSON line ``RESULT {...}``. Modes:
 * ``node-loss``: worker nodes of 1 CPU each. ``GPL_DIST_FAULT`` (set by the test) pauses
   one unit of round 0 mid-unit; the node running it is then removed. Its actor cannot restart
   anywhere (no free CPU left), so the other node must finish round 0 and round 1 alone.
+* ``ray-train``: worker nodes of 2 CPUs each and ``training.engine: ray-train`` with 2 learners:
+  the rollout actors take one CPU of each node, so the two learners must train from two nodes.
 
 The environment (set by the test) gives ``RAY_TMPDIR``: every Ray file of this cluster lives there.
 """
@@ -48,6 +50,20 @@ def _node_of_pid(cluster, pid: int):
     raise RuntimeError(f"process {pid} is not under any worker node's raylet")
 
 
+def _record_learner_nodes(out: dict) -> None:
+    """Note in ``out`` the nodes of the Ray Train learners the run makes (observed, not changed)."""
+    from learner import driver
+
+    make = driver._make_learner
+
+    def recording(*args, **kwargs):
+        learner = make(*args, **kwargs)
+        out["learner_nodes"] = list(learner.nodes)
+        return learner
+
+    driver._make_learner = recording
+
+
 def main(mode: str, work: Path) -> None:
     import yaml
     from ray.cluster_utils import Cluster
@@ -66,13 +82,17 @@ def main(mode: str, work: Path) -> None:
     cluster = Cluster(initialize_head=True, head_node_args=dict(
         num_cpus=0, gcs_server_port=gcs_port, include_dashboard=False, dashboard_port=dash_port,
         dashboard_agent_listen_port=agent_port, **common))
-    node_cpus = 2 if mode == "spread" else 1
+    node_cpus = 1 if mode == "node-loss" else 2
     workers = [cluster.add_node(num_cpus=node_cpus, **common) for _ in range(2)]
     out: dict = {"worker_nodes": [n.node_id for n in workers], "head_node": cluster.head_node.node_id}
     collector = None
     try:
         cluster.wait_for_nodes()
-        cfg = config_from_dict(yaml.safe_load(TINY_YAML))
+        raw = yaml.safe_load(TINY_YAML)
+        if mode == "ray-train":
+            raw["training"].update(engine="ray-train", num_learners=2)
+            _record_learner_nodes(out)
+        cfg = config_from_dict(raw)
         run_dir = work / "run"
         collector = RayCollector(get_domain(cfg.env.domain).name, RolloutSettings.of_run(cfg), buffer_root(cfg, run_dir),
                                  run_dir.name, cfg.collection.num_workers, cluster.address, cfg.collection.max_unit_retries)

@@ -133,3 +133,17 @@ def test_multinode_actors_spread_over_nodes(tmp_path):
     assert set(res["unit_nodes"].values()) == workers, res
     assert res["rounds"] == [0, 1] and not res["unit_tries"]
     assert_buffer_exactly_once(tmp_path / "run" / "buffer", [0, 1])
+
+
+def test_ray_train_learners_train_from_two_nodes(tmp_path):
+    """training.engine=ray-train: the learners are placed where the cluster has room (here one on
+    each worker node, beside a rollout actor), train every round, and the run checkpoints as ever."""
+    res = run_multinode("ray-train", tmp_path)
+    workers = set(res["worker_nodes"])
+    assert len(res["learner_nodes"]) == 2 and set(res["learner_nodes"]) == workers, res
+    assert res["rounds"] == [0, 1]
+    assert_buffer_exactly_once(tmp_path / "run" / "buffer", [0, 1])
+    from learner.checkpoint import load_checkpoint
+
+    ckpt = load_checkpoint(tmp_path / "run" / "checkpoints")
+    assert ckpt.round_index == 1 and ckpt.optimizer_state["state"][0]["step"] > 0
