@@ -26,11 +26,11 @@ def _execute_task(run: SuiteRun, suite: Suite, commit: str) -> dict:
 def cpus_per_run(run: SuiteRun, suite: Suite) -> int:
     """CPUs one run holds on the cluster: its task (its driver and first learner), its further
     data-parallel learner processes, or its Ray Train learners beside the task, and its rollout actors."""
-    from learner.ray_train import reserved_cpus
+    from learner.ray_train import group_cpus
 
     cfg = run.config(suite)
     if cfg.training.engine == "ray-train":
-        return 1 + reserved_cpus(cfg.training) + cfg.collection.num_workers
+        return 1 + group_cpus(cfg.training) + cfg.collection.num_workers
     return max(1, cfg.training.num_learners) + cfg.collection.num_workers
 
 
@@ -42,8 +42,8 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, commit:
     too_big = [r for r in runs if cpus_per_run(r, suite) > cluster_cpus]
     if too_big:
         r = too_big[0]
-        raise SuiteError(f"{r.entry.name} seed {r.seed} needs {cpus_per_run(r, suite)} CPUs (a task and its rollout "
-                         f"actors) and the cluster has {cluster_cpus}: lower collection.num_workers in the entry")
+        raise SuiteError(f"{r.entry.name} seed {r.seed} needs {cpus_per_run(r, suite)} CPUs (a task, its learners and "
+                         f"its rollout actors) and the cluster has {cluster_cpus}: lower collection.num_workers in the entry")
     queue, failed, free = list(runs), [], cluster_cpus
     pending: dict[ray.ObjectRef, SuiteRun] = {}
     while queue or pending:

@@ -241,8 +241,11 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     have been checked; a resumed run that has reached ``training.num_rounds`` changes nothing.
     """
     run_dir = Path(run_dir)
-    if serial and cfg.training.engine == "ray-train":
-        raise ConfigError("training.engine=ray-train trains on a Ray cluster: drop --serial, or use training.engine=processes")
+    if cfg.training.engine == "ray-train" and (serial or not address):
+        # on one machine the same learners run as training.engine=processes, on loopback; Ray Train's
+        # rendezvous store and gloo listen on every interface of the node
+        raise ConfigError("training.engine=ray-train places learners on a Ray cluster: give its --address, or use "
+                          "training.engine=processes on one machine (the same learners, bound to loopback)")
     tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST
@@ -344,10 +347,9 @@ def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id
                     address: str | None):
     if serial:
         return SerialCollector(cfg.env.domain, settings, root, run_id)
-    from learner.ray_train import reserved_cpus
     from workers.ray_pool import RayCollector  # Ray is imported only where a run uses it
     return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
-                        cfg.collection.max_unit_retries, reserve_cpus=reserved_cpus(cfg.training))
+                        cfg.collection.max_unit_retries)
 
 
 class _RoundLoop:

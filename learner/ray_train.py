@@ -22,6 +22,7 @@ This module imports Ray and Ray Train: it is only loaded by a run that uses them
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import shutil
 import tempfile
@@ -52,9 +53,8 @@ def learner_resources(cfg: TrainingConfig, use_gpu: bool) -> dict[str, float]:
     return {"CPU": float(max(1, cfg.num_threads)), **({"GPU": 1.0} if use_gpu else {})}
 
 
-def reserved_cpus(cfg: TrainingConfig) -> int:
-    """CPUs a local cluster started for this run must hold beyond its rollout actors' (so that the
-    group can be placed at all: the actors keep theirs for the whole run)."""
+def group_cpus(cfg: TrainingConfig) -> int:
+    """CPUs a run's Ray Train learners hold on the cluster for the whole run (0 with ``processes``)."""
     return cfg.num_learners * max(1, cfg.num_threads) if cfg.engine == "ray-train" else 0
 
 
@@ -73,23 +73,41 @@ def wants_gpu(device: str, cluster_gpus: float, num_learners: int) -> bool:
 
 @ray.remote(num_cpus=0)
 class _RoundBoard:
-    """Where the driver posts each round's job and rank 0 posts the round's result."""
+    """Where the driver posts each round's job and rank 0 posts the round's result.
 
-    def __init__(self) -> None:
+    A job is dropped once all ``size`` learners took it (its view then leaves the object store
+    with the driver's reference); after ``stop`` every learner that asks for a job gets None.
+    """
+
+    def __init__(self, size: int) -> None:
+        self.size = size
         self.jobs: dict[int, Any] = {}
+        self.takers: dict[int, set[int]] = {}
         self.results: dict[int, Any] = {}
+        self.stopped = False
         self.changed = asyncio.Condition()
 
     async def post_job(self, k: int, job: Any) -> None:
-        """Round ``k``'s job (None: stop); every learner has taken every earlier one by now."""
         async with self.changed:
-            self.jobs = {k: job}
+            self.jobs[k], self.takers[k] = job, set()
             self.changed.notify_all()
 
-    async def job(self, k: int) -> Any:
+    async def stop(self) -> None:
         async with self.changed:
-            await self.changed.wait_for(lambda: k in self.jobs)
-            return self.jobs[k]
+            self.stopped, self.jobs = True, {}
+            self.changed.notify_all()
+
+    async def job(self, k: int, rank: int) -> Any:
+        """Round ``k``'s job for learner ``rank``, once posted; None once stopped."""
+        async with self.changed:
+            await self.changed.wait_for(lambda: self.stopped or k in self.jobs)
+            if self.stopped:
+                return None
+            job = self.jobs[k]
+            self.takers[k].add(rank)
+            if len(self.takers[k]) == self.size:
+                del self.jobs[k], self.takers[k]
+            return job
 
     async def post_result(self, k: int, result: Any) -> None:
         async with self.changed:
@@ -139,7 +157,7 @@ def _learner_loop(config: dict) -> None:
     if group.rank == 0:
         ray.get(board.post_result.remote(-1, nodes))
     k = 0
-    while (job := ray.get(board.job.remote(k))) is not None:
+    while (job := ray.get(board.job.remote(k, group.rank))) is not None:
         state, (view_ref,) = job
         result = train_from_state(learner, state, ray.get(view_ref))
         if group.rank == 0:
@@ -164,23 +182,33 @@ class RayTrainLearner(ShippedStateLearner):
         super().__init__(model, cfg, seed)
         need = learner_resources(cfg, use_gpu)
         self._check_room(cfg.num_learners, need)
+        # what the learners resolve on their nodes: the device this group holds, the threads its CPUs allow
+        worker_cfg = dataclasses.replace(cfg, device="cuda" if use_gpu else "cpu", num_threads=int(need["CPU"]))
         self._storage = tempfile.mkdtemp(prefix="gpl-ray-train-")
-        self._board: Any = _RoundBoard.remote()  # type: ignore[attr-defined]  # an ActorClass
+        self._board: Any = _RoundBoard.remote(cfg.num_learners)  # type: ignore[attr-defined]  # an ActorClass
+        # no retries of any kind: a lost learner loses the round, and --resume retrains it from the
+        # checkpoint (a group restarted behind the driver's back would wait for a round never posted)
+        failures = FailureConfig(max_failures=0, max_preemption_failures=0,  # type: ignore[call-arg]  # V2 fields
+                                 controller_failure_limit=0)
         trainer = TorchTrainer(
-            _learner_loop, train_loop_config={"board": self._board, "model": model, "cfg": cfg, "seed": seed},
+            _learner_loop, train_loop_config={"board": self._board, "model": model, "cfg": worker_cfg, "seed": seed},
             torch_config=TorchConfig(backend="nccl" if use_gpu else "gloo",
                                      timeout_s=int(COLLECTIVE_TIMEOUT.total_seconds())),
             scaling_config=ScalingConfig(num_workers=cfg.num_learners, use_gpu=use_gpu, resources_per_worker=need),
-            run_config=RunConfig(name="gpl-learners", storage_path=self._storage,
-                                 failure_config=FailureConfig(max_failures=0)))
+            run_config=RunConfig(name="gpl-learners", storage_path=self._storage, failure_config=failures))
         self._error: BaseException | None = None
         self._fit = threading.Thread(target=self._run, args=(trainer,), name="ray-train-fit", daemon=True)
         self._fit.start()
         self._round = 0
-        #: the Ray node id of each learner, by rank
-        self.nodes: list[str] = self._await(self._board.result.remote(-1), START_WAIT_S,
-                                            f"the {cfg.num_learners} Ray Train learner(s) did not start within "
-                                            f"{START_WAIT_S:.0f} s")
+        try:
+            #: the Ray node id of each learner, by rank
+            self.nodes: list[str] = self._await(
+                self._board.result.remote(-1), START_WAIT_S,
+                f"the {cfg.num_learners} Ray Train learner(s) of {need} each were not all placed and started within "
+                f"{START_WAIT_S:.0f} s (is there a node with room for each?)")
+        except BaseException:
+            self.close()
+            raise
         log.info("%d Ray Train learner(s) started (%s each) on %d node(s)", cfg.num_learners, need, len(set(self.nodes)))
 
     @staticmethod
@@ -213,7 +241,7 @@ class RayTrainLearner(ShippedStateLearner):
                 raise LearnerFailed(f"the Ray Train learners stopped ({_last_line(self._error)}; the log has the "
                                     "traceback); restart the run with --resume")
             if time.monotonic() > deadline:
-                raise LearnerFailed(f"{what}; restart the run with --resume")
+                raise LearnerFailed(what)
 
     def _train_elsewhere(self, state, view):
         view_ref = ray.put(view)  # once per round; every learner maps it (on its own node, one copy)
@@ -223,10 +251,10 @@ class RayTrainLearner(ShippedStateLearner):
         return result
 
     def close(self) -> None:
-        """Stop the group (its workers leave their loop) and remove Ray Train's run directory."""
-        if self._fit.is_alive():
-            self._board.post_job.remote(self._round, None)
-            self._fit.join(timeout=60)
+        """Stop the group (its learners leave their loop, or their collective fails) and remove Ray
+        Train's run directory."""
+        ray.get(self._board.stop.remote())
+        self._fit.join(timeout=60)
         if self._fit.is_alive():
             log.warning("the Ray Train learners did not stop within 60 s; they end with this driver")
         ray.kill(self._board)

@@ -59,6 +59,13 @@ def _record_learner_nodes(out: dict) -> None:
     def recording(*args, **kwargs):
         learner = make(*args, **kwargs)
         out["learner_nodes"] = list(learner.nodes)
+        close = learner.close
+
+        def closing():
+            close()
+            out["learners_stopped"] = not learner._fit.is_alive()
+
+        learner.close = closing
         return learner
 
     driver._make_learner = recording

@@ -141,6 +141,7 @@ def test_ray_train_learners_train_from_two_nodes(tmp_path):
     res = run_multinode("ray-train", tmp_path)
     workers = set(res["worker_nodes"])
     assert len(res["learner_nodes"]) == 2 and set(res["learner_nodes"]) == workers, res
+    assert res["learners_stopped"], res  # the run's end stopped the group, within close()'s wait
     assert res["rounds"] == [0, 1]
     assert_buffer_exactly_once(tmp_path / "run" / "buffer", [0, 1])
     from learner.checkpoint import load_checkpoint

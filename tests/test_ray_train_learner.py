@@ -53,7 +53,7 @@ def test_a_group_the_cluster_cannot_hold_is_refused_before_it_starts(ray_cluster
 
 
 def test_gpu_choice_for_ray_train_learners():
-    from learner.ray_train import learner_resources, reserved_cpus, wants_gpu
+    from learner.ray_train import group_cpus, learner_resources, wants_gpu
 
     assert wants_gpu("auto", cluster_gpus=4, num_learners=4)
     assert not wants_gpu("auto", cluster_gpus=1, num_learners=2)
@@ -61,8 +61,8 @@ def test_gpu_choice_for_ray_train_learners():
     with pytest.raises(ConfigError, match="cluster has 1 GPU"):
         wants_gpu("cuda", cluster_gpus=1, num_learners=2)
     assert learner_resources(_cfg(num_threads=3), use_gpu=True) == {"CPU": 3.0, "GPU": 1.0}
-    assert reserved_cpus(_cfg(num_learners=3)) == 3
-    assert reserved_cpus(_cfg(engine="processes", num_learners=3)) == 0
+    assert group_cpus(_cfg(num_learners=3, num_threads=2)) == 6
+    assert group_cpus(_cfg(engine="processes", num_learners=3)) == 0
 
 
 def test_engine_is_checked_with_the_config():
@@ -72,10 +72,12 @@ def test_engine_is_checked_with_the_config():
         load_config(None, {"training.engine": "ray-train", "training.num_learners": "0"})
 
 
-def test_ray_train_with_serial_is_refused_before_anything_is_written(tmp_path):
+def test_ray_train_without_a_cluster_is_refused_before_anything_is_written(tmp_path):
+    """Ray Train's rendezvous listens on every interface: a run on one machine uses processes."""
     from learner.driver import run_training
 
     cfg = load_config(None, {"training.engine": "ray-train", "training.num_learners": "2"})
-    with pytest.raises(ConfigError, match="drop --serial"):
-        run_training(cfg, tmp_path / "run", serial=True)
+    for serial in (True, False):
+        with pytest.raises(ConfigError, match="give its --address, or use training.engine=processes"):
+            run_training(cfg, tmp_path / "run", serial=serial)
     assert not (tmp_path / "run").exists()

@@ -110,15 +110,11 @@ def check_reachable(address: str) -> None:
         raise UsageError(f"cannot reach a Ray cluster at {address} ({err.strerror or err})") from None
 
 
-def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None, reserve_cpus: int = 0,
-             **kwargs) -> bool:
+def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None, **kwargs) -> bool:
     """Start or join Ray; returns True when this call started a local cluster (and owns it).
 
-    A local cluster has a CPU per rollout actor (at least the machine's cores) plus ``reserve_cpus``
-    for what else the run places (Ray Train learners: the actors wait while they train, so the two
-    share the cores in time), and listens on loopback only (every GCS, raylet, object manager,
-    worker and agent socket; ``tests/test_fault_tolerance.py`` reads them). ``kwargs`` go to
-    ``ray.init``.
+    A local cluster listens on loopback only (every GCS, raylet, object manager, worker and agent
+    socket; ``tests/test_fault_tolerance.py`` reads them). ``kwargs`` go to ``ray.init``.
     """
     if ray.is_initialized():
         return False
@@ -127,8 +123,8 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
         ray.init(address=address, **{"log_to_driver": True, **kwargs})
         return False
     with _loopback_only():
-        ray.init(num_cpus=max(num_workers, os.cpu_count() or 1) + reserve_cpus, include_dashboard=False,
-                 _temp_dir=temp_dir, **{"log_to_driver": True, **kwargs})
+        ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,
+                 **{"log_to_driver": True, **kwargs})
     return True
 
 
@@ -147,8 +143,8 @@ class RayCollector:
     POLL_S = 5.0
 
     def __init__(self, domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
-                 num_workers: int, address: str | None = None, max_unit_retries: int = 3, reserve_cpus: int = 0):
-        self._owns_ray = init_ray(address, num_workers, reserve_cpus=reserve_cpus)
+                 num_workers: int, address: str | None = None, max_unit_retries: int = 3):
+        self._owns_ray = init_ray(address, num_workers)
         self.max_unit_retries = max_unit_retries
         self._actor_args = (domain_name, settings, buffer_root, run_id)
         self.actors = [self._new_actor(i) for i in range(num_workers)]
