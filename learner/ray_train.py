@@ -146,7 +146,7 @@ class _DefaultGroup:
 
 def _learner_loop(config: dict) -> None:
     """What each Ray Train worker runs: build a learner in the group, then train every round the
-    driver posts until it posts None."""
+    driver posts until the board is stopped."""
     from learner.trainer import Learner
 
     group = _DefaultGroup()
