@@ -18,6 +18,7 @@ from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
 from gpl_dist.models.gpl import GPLPolicy
 from gpl_dist.models.mivoa import MIVOAPolicy
 from learner.parallel import DataParallelLearner
+from learner.ray_train import RayTrainLearner
 from learner.remote import RemoteLearner
 from learner.trainer import Learner
 from storage.reader import BufferReader
@@ -63,5 +64,5 @@ def learner(x: Learner) -> roles.Learner:
     return x
 
 
-def other_learners(a: DataParallelLearner, b: RemoteLearner) -> tuple[roles.Learner, roles.Learner]:
-    return a, b
+def other_learners(a: DataParallelLearner, b: RemoteLearner, c: RayTrainLearner) -> tuple[roles.Learner, ...]:
+    return a, b, c

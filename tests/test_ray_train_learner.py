@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from gpl_dist import roles
 from gpl_dist.config import ConfigError, TrainingConfig, load_config
 from gpl_dist.domains import get_domain
 from gpl_dist.models.gpl import build_model, state_dict_to_numpy
@@ -27,7 +28,7 @@ def test_two_ray_train_learners_train_as_one_and_fail_in_one_line(ray_cluster, t
     one = Learner(build_model(get_domain("multiroom"), seed=3), _cfg(num_learners=1, engine="processes"), seed=5)
     group = RayTrainLearner(build_model(get_domain("multiroom"), seed=3), _cfg(), seed=5)
     try:
-        assert len(group.nodes) == 2
+        assert len(group.nodes) == 2 and isinstance(group, roles.Learner)
         for _ in range(2):
             s1, s2 = one.train_round(view), group.train_round(view)
             w1, w2 = state_dict_to_numpy(one.model), state_dict_to_numpy(group.model)
