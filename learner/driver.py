@@ -166,6 +166,11 @@ def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
     """Checks that need more than the config itself (the device, the task list, a cluster's
     address); returns the tasks. Runs before anything is written: a run that fails them leaves
     no trace."""
+    if cfg.training.engine == "ray-train" and not address:
+        # on one machine the same learners run as training.engine=processes, on loopback; Ray Train's
+        # rendezvous store and gloo listen on every interface of the node
+        raise ConfigError("training.engine=ray-train places learners on a Ray cluster: give its --address, or use "
+                          "training.engine=processes on one machine (the same learners, bound to loopback)")
     if not address or cfg.training.device != "cuda":  # a cluster's GPUs are counted once joined
         resolve_device(cfg.training.device)
     if address:
@@ -241,11 +246,6 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     have been checked; a resumed run that has reached ``training.num_rounds`` changes nothing.
     """
     run_dir = Path(run_dir)
-    if cfg.training.engine == "ray-train" and (serial or not address):
-        # on one machine the same learners run as training.engine=processes, on loopback; Ray Train's
-        # rendezvous store and gloo listen on every interface of the node
-        raise ConfigError("training.engine=ray-train places learners on a Ray cluster: give its --address, or use "
-                          "training.engine=processes on one machine (the same learners, bound to loopback)")
     tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST

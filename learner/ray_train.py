@@ -12,9 +12,9 @@ The group starts once per run and lives for all rounds (starting it costs tens o
 ``TorchTrainer.fit`` runs in a thread of the driver, and the rounds go through a ``_RoundBoard``
 actor. Every round the driver posts the state it holds (``learner.remote.ShippedStateLearner``:
 model, Adam, batch generator) with a reference to the training view, put once in the object
-store; every learner takes them, they train together, and rank 0 posts the new state back. A
-learner that dies fails the group (``FailureConfig(max_failures=0)``): the round is lost, the
-driver raises ``LearnerFailed``, and ``--resume`` retrains it from the last checkpoint.
+store; every learner takes them, they train together, and rank 0 posts the new state back. Ray
+Train retries nothing: a learner that dies fails the group, the round is lost, the driver raises
+``LearnerFailed``, and ``--resume`` retrains it from the last checkpoint.
 
 This module imports Ray and Ray Train: it is only loaded by a run that uses them.
 """
@@ -55,7 +55,7 @@ def learner_resources(cfg: TrainingConfig, use_gpu: bool) -> dict[str, float]:
 
 def group_cpus(cfg: TrainingConfig) -> int:
     """CPUs a run's Ray Train learners hold on the cluster for the whole run (0 with ``processes``)."""
-    return cfg.num_learners * max(1, cfg.num_threads) if cfg.engine == "ray-train" else 0
+    return cfg.num_learners * int(learner_resources(cfg, use_gpu=False)["CPU"]) if cfg.engine == "ray-train" else 0
 
 
 def wants_gpu(device: str, cluster_gpus: float, num_learners: int) -> bool:

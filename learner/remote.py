@@ -6,7 +6,9 @@ replica of the model, the Adam state and the batch generator's state: every roun
 with the training view (numpy, through Ray's object store), the actor trains and sends the new
 state back. The driver therefore checkpoints, resumes and hands weights to the rollout actors
 (one ``ray.put`` per round, as always) exactly as with a local learner, and a restarted actor
-retries the round from the state sent with it. This module imports Ray: it is only loaded by a run that uses a cluster.
+retries the round from the state sent with it. That driver side, ``ShippedStateLearner``, is
+shared with the Ray Train learners (``learner.ray_train``). This module imports Ray: it is only
+loaded by a run that uses a cluster.
 """
 
 from __future__ import annotations
