@@ -138,12 +138,18 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
         held = f"; {holder.describe()}" if holder else ""
         print(f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})")
     if suite.rl is not None:
-        from gpl_dist.suite_rl import attempts_jobs, is_current, result_path, rl_jobs
+        from gpl_dist.suite_rl import NotTrainedYet, attempts_current, attempts_jobs, is_current, rl_jobs, trained_fingerprint
 
         rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
-        counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain)) for j in jobs), len(jobs)),
-                  ("GPL/GPR attempt sets", sum(result_path(args.out, j.key).is_file() for j in points), len(points)))
-        for what, done, total in counts:  # an RL result made with other PPO settings is not done
+
+        def start(job) -> str | None:  # the fingerprint of the policy rl-finetune starts from, as trained now
+            try:
+                return trained_fingerprint(args.out, job.pretrained) if job.method == "rl-finetune" else None
+            except NotTrainedYet:
+                return "not trained"
+        counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain), start(j)) for j in jobs), len(jobs)),
+                  ("GPL/GPR attempt sets", sum(attempts_current(args.out, j) for j in points), len(points)))
+        for what, done, total in counts:  # made with other PPO settings or from another policy: not done
             print(f"rl: {done} of {total} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
     return 0
 

@@ -87,6 +87,8 @@ class ModelConfig:
     """BatchNorm1d after every hidden layer of the policy module's MLP (the authors' code has it)."""
     paraphrases: bool = False
     """Train on the domain's training paraphrases of instructions and corrections (their words join the vocabulary)."""
+    linear_encodings: bool = False
+    """End GPL's instruction, correction, trajectory and pair encoders linear, not in a ReLU (narrow ReLU outputs can all die)."""
 
 
 @dataclass(frozen=True)

@@ -67,24 +67,24 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, commit:
 
 
 @ray.remote(num_cpus=1, max_retries=0)
-def _rl_task(job, settings, weights, policy_batchnorm: bool):
+def _rl_task(job, settings, weights, model):
     from learner.rl import run_rl_job
 
-    return run_rl_job(job, settings, weights, policy_batchnorm)
+    return run_rl_job(job, settings, weights, model)
 
 
-def run_rl_on_ray(jobs: list, settings: dict, weights: dict, address: str | None, on_done, log=print) -> None:
+def run_rl_on_ray(jobs: list, settings: dict, pretrained: dict, address: str | None, on_done, log=print) -> None:
     """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
-    as each finishes. ``settings``: domain -> ``learner.rl.PPOSettings``. ``weights``: domain ->
-    (numpy weights, policy_batchnorm) for ``rl-finetune``,
-    put in the object store once. Raises after all ended if any failed."""
+    as each finishes. ``settings``: domain -> ``learner.rl.PPOSettings``. ``pretrained``: domain ->
+    ``gpl_dist.suite_rl.Pretrained`` for ``rl-finetune`` (its weights put in the object store
+    once). Raises after all ended if any failed."""
     owned = init_ray(address, num_workers=1)
     try:
-        shared = {d: (ray.put(w), bn) for d, (w, bn) in weights.items()}
+        shared = {d: (ray.put(dict(p.weights)), p.model) for d, p in pretrained.items()}
         pending = {}
         for job in jobs:
-            w, bn = shared[job.domain] if job.method == "rl-finetune" else (None, False)
-            pending[_rl_task.remote(job, settings[job.domain], w, bn)] = job
+            w, arch = shared[job.domain] if job.method == "rl-finetune" else (None, None)
+            pending[_rl_task.remote(job, settings[job.domain], w, arch)] = job
         failed = []
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)

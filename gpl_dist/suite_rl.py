@@ -11,7 +11,9 @@ runs every (method, domain, task, seed) not yet done, one after another or as Ra
 - ``OUT/rl/attempts/<entry>-seed<s>.json``: each RL task's completion after attempts 1..6 of the
   entry's trained policy (its training seed 0), corrected by the run's oracle with evaluation seed ``s``.
 
-A killed run loses only the jobs in flight; running it again does the rest. The report
+A result made from a trained policy (``rl-finetune``'s start, the attempts) records that policy's
+``policy_fingerprint``; once the entry is trained again, its results are redone. A killed run loses
+only the jobs in flight; running it again does the rest. The report
 (``gpl_dist.suite_report``) draws the figure from these files.
 """
 
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from gpl_dist.config import ConfigError
+from gpl_dist.config import ConfigError, ModelConfig
 
 #: Attempts drawn for GPL and GPR (the paper's figure: completion after k attempts at k trajectories).
 ATTEMPTS = 6
@@ -153,10 +155,29 @@ def result_path(out: str | Path, key: str) -> Path:
     return Path(out) / "rl" / f"{key}.json"
 
 
-def is_current(out: str | Path, job, settings) -> bool:
-    """Whether ``job``'s result is written and was made with ``settings`` (``learner.rl.PPOSettings``)."""
+def is_current(out: str | Path, job, settings, policy: str | None = None) -> bool:
+    """Whether ``job``'s result is written and was made with ``settings`` (``learner.rl.PPOSettings``)
+    and, for a job that starts from a trained policy, from the one of fingerprint ``policy``."""
     path = result_path(out, job.key)
-    return path.is_file() and json.loads(path.read_text()).get("settings") == dataclasses.asdict(settings)
+    if not path.is_file():
+        return False
+    data = json.loads(path.read_text())
+    return data.get("settings") == dataclasses.asdict(settings) and data.get("policy") == policy
+
+
+def policy_fingerprint(weights: Mapping[str, Any]) -> str:
+    """sha256 of a policy's weights (numpy arrays: names, dtypes, shapes and bytes, in name order),
+    16 hex digits: which trained policy a result was made from."""
+    import hashlib
+
+    import numpy as np
+
+    digest = hashlib.sha256()
+    for name in sorted(weights):
+        array = np.ascontiguousarray(weights[name])
+        digest.update(f"{name}:{array.dtype}:{array.shape};".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()[:16]
 
 
 def write_result(out: str | Path, key: str, payload: dict) -> Path:
@@ -186,19 +207,41 @@ def trained_run_dir(out: str | Path, entry: str) -> Path:
     return run_dir
 
 
-def pretrained_weights(out: str | Path, entry: str) -> tuple[dict, bool]:
-    """The numpy weights of an instruction-only entry's trained policy and its ``policy_batchnorm``."""
+@dataclass(frozen=True)
+class Pretrained:
+    """The trained instruction-only policy ``rl-finetune`` starts from."""
+
+    weights: Mapping[str, Any]
+    """Its weights as numpy arrays (``state_dict_to_numpy``)."""
+    model: ModelConfig
+    """Its run's ``model`` section: the architecture the weights fit."""
+    fingerprint: str
+    """``policy_fingerprint(weights)``, recorded in every result made from it."""
+
+
+def load_pretrained(out: str | Path, entry: str) -> Pretrained:
+    """The trained policy of an instruction-only entry (its training seed 0)."""
     from gpl_dist.models.gpl import state_dict_to_numpy
     from learner.evaluate import load_trained_policy
 
     cfg, model, _ = load_trained_policy(trained_run_dir(out, entry))
     if cfg.model.variant != "instruction_only":
         raise ConfigError(f"rl-finetune starts from an instruction-only policy; entry '{entry}' is {cfg.model.variant}")
-    return state_dict_to_numpy(model), cfg.model.policy_batchnorm
+    weights = state_dict_to_numpy(model)
+    return Pretrained(weights, cfg.model, policy_fingerprint(weights))
+
+
+def trained_fingerprint(out: str | Path, entry: str) -> str:
+    """``policy_fingerprint`` of an entry's trained policy (its training seed 0)."""
+    from gpl_dist.models.gpl import state_dict_to_numpy
+    from learner.evaluate import load_trained_policy
+
+    return policy_fingerprint(state_dict_to_numpy(load_trained_policy(trained_run_dir(out, entry))[1]))
 
 
 def run_attempts_job(job: AttemptsJob, plan: RLPlan, out: str | Path) -> dict:
     """Each RL task's completion after attempts 1..``ATTEMPTS`` of the entry's policy (meta-test)."""
+    from gpl_dist.models.gpl import state_dict_to_numpy
     from learner.evaluate import load_trained_policy, meta_test_rollout
     from workers.rollout import completion_by_attempt
 
@@ -208,7 +251,19 @@ def run_attempts_job(job: AttemptsJob, plan: RLPlan, out: str | Path) -> dict:
     attempts = meta_test_rollout(cfg, model).run(tasks, ATTEMPTS - 1, job.seed, split="rl").attempts
     per_task = [completion_by_attempt([a for a in attempts if a.task_id == t], ATTEMPTS).tolist() for t in tasks]
     return {"entry": job.entry, "domain": job.domain, "seed": job.seed, "variant": cfg.model.variant,
-            "tasks": list(tasks), "completion": per_task}
+            "tasks": list(tasks), "completion": per_task, "policy": policy_fingerprint(state_dict_to_numpy(model))}
+
+
+def attempts_current(out: str | Path, job: AttemptsJob) -> bool:
+    """Whether ``job``'s result is written from the entry's current trained policy (an entry not
+    trained yet keeps what is written)."""
+    path = result_path(out, job.key)
+    if not path.is_file():
+        return False
+    try:
+        return json.loads(path.read_text()).get("policy") == trained_fingerprint(out, job.entry)
+    except NotTrainedYet:
+        return True
 
 
 def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, serial: bool = False,
@@ -224,7 +279,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
 
     commit = code_commit()  # read once: a commit made while the jobs run does not relabel them
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
-    todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not result_path(out, j.key).is_file()]
+    todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not attempts_current(out, j)]
     ran = 0
     for job in todo_attempts:
         try:
@@ -236,12 +291,19 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
         log(f"[rl] {job.key} written")
     settings = {d: plan.settings(d) for d in plan.tasks}
     kept = [j for j in rl_jobs(plan) if keep(j.domain)]
-    jobs = [j for j in kept if not is_current(out, j, settings[j.domain])]
-    weights = {d: pretrained_weights(out, plan.pretrained[d]) for d in {j.domain for j in jobs if j.method == "rl-finetune"}}
+    pretrained = {}
+    for d in sorted({j.domain for j in kept if j.method == "rl-finetune"}):
+        try:
+            pretrained[d] = load_pretrained(out, plan.pretrained[d])
+        except NotTrainedYet as err:  # its rl-finetune jobs wait; the others need nothing of it
+            log(f"[rl] rl-finetune/{d} left for later: {err}")
+    kept = [j for j in kept if j.method != "rl-finetune" or j.domain in pretrained]
+    policy = lambda j: pretrained[j.domain].fingerprint if j.method == "rl-finetune" else None  # noqa: E731
+    jobs = [j for j in kept if not is_current(out, j, settings[j.domain], policy(j))]
     log(f"[rl] {len(jobs)} RL job(s) to run ({len(kept) - len(jobs)} already done)")
 
     def finished(job, curve) -> None:
-        write_result(out, job.key, {**curve.to_json(), "commit": commit})
+        write_result(out, job.key, {**curve.to_json(), "commit": commit, "policy": policy(job)})
         tail = curve.completion[-max(1, len(curve.completion) // 10):]
         solved = f", updates stopped at {curve.solved_at} (solved)" if curve.solved_at else ""
         log(f"[rl] {job.key}: {len(curve.completion)} trajectories in {curve.seconds:.0f}s, "
@@ -249,12 +311,13 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
 
     if serial:
         for job in jobs:
-            w, bn = weights.get(job.domain, (None, False)) if job.method == "rl-finetune" else (None, False)
-            finished(job, run_rl_job(job, settings[job.domain], w, bn))
+            start = pretrained[job.domain] if job.method == "rl-finetune" else None
+            weights, model = (dict(start.weights), start.model) if start else (None, None)
+            finished(job, run_rl_job(job, settings[job.domain], weights, model))
     elif jobs:
         from gpl_dist.suite_ray import run_rl_on_ray
 
-        run_rl_on_ray(jobs, settings, weights, address, finished, log)
+        run_rl_on_ray(jobs, settings, pretrained, address, finished, log)
     return ran + len(jobs)
 
 

@@ -33,9 +33,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from gpl_dist.config import ModelConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
-from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model
+from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model_from_config
 from gpl_dist.roles import DomainSpec
 from gpl_dist.seeding import derive_seed
 
@@ -232,9 +233,11 @@ class CompletionRecorder(gymnasium.Wrapper):
 
 
 def task_network(domain: DomainSpec, weights: dict[str, np.ndarray] | None, seed: int,
-                 policy_batchnorm: bool = False) -> GPLPolicy:
-    """The instruction-only GPL network: fresh (``seed``) or with ``weights`` (a pretrained policy's)."""
-    network = build_model(domain, "instruction_only", seed=seed, policy_batchnorm=policy_batchnorm)
+                 model: ModelConfig | None = None) -> GPLPolicy:
+    """The instruction-only GPL network: fresh (``seed``) or with ``weights`` (a pretrained policy's),
+    built as ``model`` (the pretrained run's ``model`` section; None: the defaults) describes it."""
+    cfg = dataclasses.replace(model or ModelConfig(), variant="instruction_only")
+    network = build_model_from_config(domain, cfg, seed=seed)
     if weights is not None:
         network.load_state_dict({k: torch.as_tensor(np.asarray(v)) for k, v in weights.items()})
     assert isinstance(network, GPLPolicy)
@@ -280,9 +283,10 @@ def _returns(env: gymnasium.Env):
 
 
 def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
-             policy_batchnorm: bool = False) -> tuple[Any, CompletionRecorder]:
+             model: ModelConfig | None = None) -> tuple[Any, CompletionRecorder]:
     """SB3's PPO on ``settings.n_envs`` copies of ``job``'s task and the first copy (its lists record
-    every copy's episodes); ``weights`` (an instruction-only policy's, as numpy) for ``rl-finetune``."""
+    every copy's episodes); ``weights`` (an instruction-only policy's, as numpy) for ``rl-finetune``,
+    with its run's ``model`` section (the architecture they fit)."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     if job.method not in RL_METHODS:
@@ -296,7 +300,7 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
         raise UsageError(f"PPO settings: n_envs must be >= 1 and n_steps >= 0 (got {settings.n_envs}, {settings.n_steps})")
     seed = derive_seed(job.seed, job.task_id, 0x5B3) % 2**32  # SB3 seeds numpy's legacy generator too
     torch.manual_seed(seed)
-    network = task_network(domain, weights, seed, policy_batchnorm)
+    network = task_network(domain, weights, seed, model)
     completion: list[float] = []
     success: list[bool] = []
     copies = [CompletionRecorder(gymnasium.make(domain.env_id, task_id=job.task_id), completion, success, True)
@@ -314,18 +318,18 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
         ortho_init=weights is None)
     with warnings.catch_warnings():  # an episode's steps need not be a multiple of the minibatch: SB3 warns, we know
         warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-        model = _stoppable_ppo_class()("MlpPolicy", env, learning_rate=settings.learning_rate,
+        ppo = _stoppable_ppo_class()("MlpPolicy", env, learning_rate=settings.learning_rate,
                     n_steps=settings.n_steps or domain.steps_per_attempt, batch_size=settings.batch_size,
                     n_epochs=settings.n_epochs, gamma=settings.gamma, gae_lambda=settings.gae_lambda,
                     clip_range=settings.clip_range, ent_coef=settings.ent_coef, vf_coef=settings.vf_coef,
                     policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0)
     if weights is not None:
         last: nn.Linear = network.head[1]  # type: ignore[assignment]
-        action_net: nn.Linear = model.policy.action_net  # type: ignore[assignment]
+        action_net: nn.Linear = ppo.policy.action_net  # type: ignore[assignment]
         with torch.no_grad():  # start from exactly the pretrained policy: its last layer is SB3's action layer
             action_net.weight.copy_(last.weight)
             action_net.bias.copy_(last.bias)
-    return model, copies[0]
+    return ppo, copies[0]
 
 
 def all_copies_solved(success: list[bool], n_envs: int) -> bool:
@@ -352,21 +356,21 @@ def budget_callback(log: CompletionRecorder, budget: int, settings: PPOSettings,
 
 
 def run_rl_job(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[str, np.ndarray] | None = None,
-               policy_batchnorm: bool = False) -> RLCurve:
+               model: ModelConfig | None = None) -> RLCurve:
     """PPO on ``job``'s task until ``job.trajectories`` episodes have ended (``make_ppo``); the copies
     end their episodes together, so the last round may end up to ``n_envs - 1`` more (in
     ``env_steps``, not in the curve)."""
     torch.set_num_threads(1)
-    model, log = make_ppo(job, settings, weights, policy_batchnorm)
+    ppo, log = make_ppo(job, settings, weights, model)
     solved_at: list[int] = []
     start = time.perf_counter()
     steps = get_domain(job.domain).steps_per_attempt
-    model.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps,
+    ppo.learn(total_timesteps=(job.trajectories + settings.n_envs) * steps,
                 callback=budget_callback(log, job.trajectories, settings, solved_at))
     if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
         solved_at.append(len(log.success))  # solved in the last round, which the budget ended before its update
     return RLCurve(job, tuple(log.completion[: job.trajectories]), tuple(log.success[: job.trajectories]),
-                   int(model.num_timesteps), time.perf_counter() - start, solved_at[0] if solved_at else None,
+                   int(ppo.num_timesteps), time.perf_counter() - start, solved_at[0] if solved_at else None,
                    dataclasses.asdict(settings))
 
 

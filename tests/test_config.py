@@ -79,3 +79,12 @@ def test_resolved_config_round_trips(tmp_path):
     again = load_config(tmp_path / "config.yaml")
     assert again == cfg
     assert config_to_dict(again)["model"]["variant"] == "no_trajectory"
+
+
+def test_a_run_saved_before_an_architecture_switch_keeps_its_architecture(tmp_path):
+    """Switches that change the function a checkpoint computes default to the behaviour from before
+    they existed, so an older run dir (its config.yaml lacks them) evaluates as it was trained."""
+    saved = tmp_path / "config.yaml"
+    saved.write_text("env:\n  domain: multiroom\nmodel:\n  variant: gpl\n")
+    model = load_config(saved).model
+    assert not model.linear_encodings and not model.policy_batchnorm and not model.trajectory_ends_at_last_state

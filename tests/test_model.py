@@ -109,6 +109,30 @@ def test_empty_history_gives_zero_correction_embedding():
     assert torch.count_nonzero(z[:, model.instruction.out_dim:]) == 0
 
 
+def test_linear_encodings_keep_the_corrections_visible_where_relu_outputs_died():
+    """Multi-room's correction and trajectory encodings are 4 units wide; when all 4 ReLUs die (a
+    training seed did), every correction encodes alike. Linear outputs cannot die."""
+    d = get_domain("multiroom")
+    relu, linear = build_model(d, seed=0).eval(), build_model(d, seed=0, linear_encodings=True).eval()
+    assert relu.state_dict().keys() == linear.state_dict().keys()  # same parameters, same initialisation
+    for a, b in zip(relu.state_dict().values(), linear.state_dict().values()):
+        assert torch.equal(a, b)
+    for encoder in (linear.instruction.mlp, linear.correction.mlp, linear.trajectory.mlp, linear.pair):
+        assert isinstance(encoder[-1], torch.nn.Linear)
+    assert isinstance(relu.correction.mlp[-1], torch.nn.ReLU)
+    cond = random_conditioning(d, a=4, k=1, seed=3)
+    # one attempt each, the same earlier trajectory, four different corrections
+    cond = _replace(cond, slots=torch.arange(4).reshape(4, 1),
+                    trajectories=cond.trajectories[:1].expand_as(cond.trajectories).clone())
+    with torch.no_grad():  # every output unit of the correction encoder's last layer pushed off
+        relu.correction.mlp[-2].bias.fill_(-100.0)
+        linear.correction.mlp[-1].bias.fill_(-100.0)
+    z_relu = _z(relu, cond)[:, relu.instruction.out_dim:]
+    z_linear = _z(linear, cond)[:, linear.instruction.out_dim:]
+    assert torch.allclose(z_relu, z_relu[:1].expand_as(z_relu))  # the corrections are invisible
+    assert not torch.allclose(z_linear, z_linear[:1].expand_as(z_linear))
+
+
 def test_unreferenced_rows_do_not_matter():
     d = get_domain("multiroom")
     model = build_model(d, "gpl", seed=0).eval()

@@ -86,7 +86,7 @@ def test_finetuning_starts_from_exactly_the_pretrained_policy(instruction_run):
     cfg, network, _ = load_trained_policy(instruction_run)
     network.eval()
     job = RLJob("rl-finetune", "multiroom", 69, 0, 4, pretrained="instr")
-    model, env = make_ppo(job, SMALL, state_dict_to_numpy(network), cfg.model.policy_batchnorm)
+    model, env = make_ppo(job, SMALL, state_dict_to_numpy(network), cfg.model)
     obs = model.env.reset()[:1]  # the first copy, as SB3 sees it (channels first)
     obs_t, _ = model.policy.obs_to_tensor(obs)
     model.policy.set_training_mode(False)
@@ -119,11 +119,12 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     path = _suite(tmp_path)
     suite = load_suite(path)
     out = tmp_path / "out"
-    with pytest.raises(ConfigError, match="has not finished training yet"):
-        run_rl_plan(suite.rl, out, serial=True, log=lambda s: None)
+    lines: list[str] = []
+    assert run_rl_plan(suite.rl, out, serial=True, log=lines.append) == 2  # rl-scratch needs no trained entry
+    assert any("rl-finetune/multiroom left for later" in s and "has not finished training yet" in s for s in lines)
     run_suite(suite, out, serial=True, progress=False)
     address = ray_cluster.get_runtime_context().gcs_address
-    assert run_rl_plan(suite.rl, out, address=address, log=lambda s: None) == 1 + 4  # GPL's points, 2 methods x 2 tasks
+    assert run_rl_plan(suite.rl, out, address=address, log=lambda s: None) == 1 + 2  # GPL's points, rl-finetune x 2 tasks
     curves, attempts, _ = load_results(out)
     assert sorted(c.job.key for c in curves) == sorted(j.key for j in rl_jobs(suite.rl)) and len(curves) == 4
     assert all(len(c.completion) == 3 for c in curves)
@@ -136,11 +137,20 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     (out / "rl" / "rl-scratch" / "multiroom" / "task69-seed0.json").unlink()  # as if killed before writing it
     stale = out / "rl" / "rl-finetune" / "multiroom" / "task180-seed0.json"
     stale.write_text(json.dumps({**json.loads(stale.read_text()), "settings": {"n_envs": 7}}))  # other PPO settings
+    # made from an earlier training of the entries: the pretrained policy, GPL's policy
+    started = out / "rl" / "rl-finetune" / "multiroom" / "task69-seed0.json"
+    policy = json.loads(started.read_text())["policy"]
+    points = out / "rl" / "attempts" / "gpl-seed0.json"
+    for made in (started, points):
+        assert len(json.loads(made.read_text())["policy"]) == 16
+        made.write_text(json.dumps({**json.loads(made.read_text()), "policy": "0" * 16}))
     assert main(["suite", "status", str(path), "--out", str(out)]) == 0
-    assert "rl: 2 of 4 RL jobs done" in capsys.readouterr().out  # neither the missing nor the stale one
+    status = capsys.readouterr().out  # neither the missing nor the stale ones
+    assert "rl: 1 of 4 RL jobs done" in status and "rl: 0 of 1 GPL/GPR attempt sets done" in status
     assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
-    assert "2 RL job(s) ran" in capsys.readouterr().out
+    assert "4 RL job(s) ran" in capsys.readouterr().out
     assert json.loads(stale.read_text())["settings"]["n_envs"] == 2
+    assert json.loads(started.read_text())["policy"] == policy and json.loads(points.read_text())["policy"] != "0" * 16
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
     md = (tmp_path / "report" / "report.md").read_text()
     assert "## Sample complexity" in md and "| multiroom | rl-finetune | 2 |" in md and "gpl (gpl)" in md

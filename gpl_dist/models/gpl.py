@@ -293,11 +293,12 @@ def _categories(domain: DomainSpec) -> tuple[int, ...]:
 class TextEncoder(nn.Module):
     """Token ids ``(B, L)`` -> vector: shared embeddings, 1-D CNN (kernel 2), MLP."""
 
-    def __init__(self, embedding: nn.Embedding, max_tokens: int, conv: int, mlp_sizes: tuple[int, ...]):
+    def __init__(self, embedding: nn.Embedding, max_tokens: int, conv: int, mlp_sizes: tuple[int, ...],
+                 final_activation: bool = True):
         super().__init__()
         self.embedding = embedding
         self.conv = nn.Conv1d(embedding.embedding_dim, conv, kernel_size=2)
-        self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1))
+        self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1), final_activation)
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
         x = torch.relu(conv1d_k2_channels_last(self.conv, self.embedding(ids)))  # (B, L-1, conv)
@@ -307,9 +308,9 @@ class TextEncoder(nn.Module):
 class ValueEncoder(nn.Module):
     """float32 ``(B, F)`` numbers -> vector: an MLP (numeric full information)."""
 
-    def __init__(self, width: int, mlp_sizes: tuple[int, ...]):
+    def __init__(self, width: int, mlp_sizes: tuple[int, ...], final_activation: bool = True):
         super().__init__()
-        self.mlp, self.out_dim = mlp(mlp_sizes, width)
+        self.mlp, self.out_dim = mlp(mlp_sizes, width, final_activation)
 
     def forward(self, values: torch.Tensor) -> torch.Tensor:
         return self.mlp(values.float())
@@ -318,7 +319,7 @@ class ValueEncoder(nn.Module):
 class TrajectoryEncoder(nn.Module):
     """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
 
-    def __init__(self, domain: DomainSpec, sizes: Sizes):
+    def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True):
         super().__init__()
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
@@ -327,7 +328,7 @@ class TrajectoryEncoder(nn.Module):
             self.state = VectorStateEncoder(domain.obs_shape)
         steps = domain.trajectory_samples
         self.conv = nn.Conv1d(self.state.out_dim, sizes.traj_conv, kernel_size=min(2, steps))
-        self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1))
+        self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1), final_activation)
 
     def forward(self, traj: torch.Tensor) -> torch.Tensor:
         b, s = traj.shape[:2]
@@ -343,9 +344,10 @@ class GPLPolicy(nn.Module):
     """The GPL network for one domain; ``variant`` selects the paper's baselines and ablations."""
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
-                 policy_batchnorm: bool = False, paraphrases: bool = False):
+                 policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False):
         super().__init__()
         self.domain_name = domain.name
+        relu_out = not linear_encodings  # the last layer of each conditioning encoder
         self.variant = variant
         sizes = domain.model_sizes
         #: the words this network reads (``DomainSpec.vocabulary_for``): text is encoded with it
@@ -355,16 +357,17 @@ class GPLPolicy(nn.Module):
         self.numeric_full_information = variant == "full_information" and domain.full_information_values is not None
         if self.numeric_full_information:
             width = len(domain.full_information_values(0))  # type: ignore[misc]
-            self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp)
+            self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp, relu_out)
         else:
-            self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp)
+            self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp,
+                                           relu_out)
         # GPR: the summed reward of each earlier attempt, in place of its correction
         self.correction: TextEncoder | ValueEncoder = (
-            ValueEncoder(1, sizes.correction_mlp) if variant == "gpr"
-            else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp))
-        self.trajectory = TrajectoryEncoder(domain, sizes)
+            ValueEncoder(1, sizes.correction_mlp, relu_out) if variant == "gpr"
+            else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp, relu_out))
+        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
-                                  final_activation=sizes.pair_final_relu)
+                                  final_activation=sizes.pair_final_relu and relu_out)
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels,
                                                      sizes.state_mlp)
@@ -437,25 +440,32 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 
 
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
-                policy_batchnorm: bool = False, paraphrases: bool = False) -> "PolicyNetwork":
+                policy_batchnorm: bool = False, paraphrases: bool = False,
+                linear_encodings: bool = False) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
-    ``paraphrases``, it reads the words of the domain's training paraphrases too."""
+    ``paraphrases``, it reads the words of the domain's training paraphrases too;
+    ``linear_encodings``: see ``gpl_dist.config.ModelConfig`` (GPL's encoders; MIVOA has its own)."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
-    cls: type[GPLPolicy] | type[MIVOAPolicy] = MIVOAPolicy if variant in MIVOA_VARIANTS else GPLPolicy
+    def make() -> "PolicyNetwork":
+        if variant in MIVOA_VARIANTS:
+            return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
+        return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings)
+
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
-            return cls(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
-    return cls(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
+            return make()
+    return make()
 
 
 def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = None) -> "PolicyNetwork":
     """The model a run's ``model`` section (``gpl_dist.config.ModelConfig``) describes: the one
     mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
-                       policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases)
+                       policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
+                       linear_encodings=model_cfg.linear_encodings)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
