@@ -142,11 +142,17 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
 
         rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
 
+        fingerprints: dict[str, str] = {}  # one checkpoint read per pretrained entry, not per job
+
         def start(job) -> str | None:  # the fingerprint of the policy rl-finetune starts from, as trained now
-            try:
-                return trained_fingerprint(args.out, job.pretrained) if job.method == "rl-finetune" else None
-            except NotTrainedYet:
-                return "not trained"
+            if job.method != "rl-finetune":
+                return None
+            if job.pretrained not in fingerprints:
+                try:
+                    fingerprints[job.pretrained] = trained_fingerprint(args.out, job.pretrained)
+                except NotTrainedYet:
+                    fingerprints[job.pretrained] = "not trained"
+            return fingerprints[job.pretrained]
         counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain), start(j)) for j in jobs), len(jobs)),
                   ("GPL/GPR attempt sets", sum(attempts_current(args.out, j) for j in points), len(points)))
         for what, done, total in counts:  # made with other PPO settings or from another policy: not done
