@@ -35,6 +35,7 @@ from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng, save_checkpoint
+from learner.health import EncoderHealth, format_health
 from learner.parallel import make_learner
 from learner.trainer import resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
@@ -100,6 +101,7 @@ class RoundMetrics:
         train_seconds: wall time of the round's training.
         train_steps: gradient steps.
         correction_spread: see ``learner.trainer.RoundStats``.
+        encoder_health: see ``learner.trainer.RoundStats``.
     """
 
     round_index: int
@@ -114,10 +116,12 @@ class RoundMetrics:
     train_seconds: float
     train_steps: int
     correction_spread: float | None
+    encoder_health: tuple[EncoderHealth, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d.update(failed_tasks=list(self.failed_tasks), completion_by_corrections=list(self.completion_by_corrections))
+        d.update(failed_tasks=list(self.failed_tasks), completion_by_corrections=list(self.completion_by_corrections),
+                 encoder_health=[h.to_list() for h in self.encoder_health])
         return {"round": d.pop("round_index"), **d}
 
     @classmethod
@@ -127,7 +131,8 @@ class RoundMetrics:
                    load_seconds=float(d.get("load_seconds", 0.0)),
                    completion_by_corrections=tuple(d["completion_by_corrections"]), buffer_tuples=int(d["buffer_tuples"]),
                    loss=float(d["loss"]), accuracy=float(d["accuracy"]), train_seconds=float(d["train_seconds"]),
-                   train_steps=int(d.get("train_steps", 0)), correction_spread=d.get("correction_spread"))
+                   train_steps=int(d.get("train_steps", 0)), correction_spread=d.get("correction_spread"),
+                   encoder_health=tuple(EncoderHealth.from_list(row) for row in d.get("encoder_health") or ()))
 
 
 @dataclass(frozen=True)
@@ -378,7 +383,7 @@ class _RoundLoop:
                             collection_seconds=collection_seconds, load_seconds=load_seconds,
                             completion_by_corrections=tuple(curve), buffer_tuples=stats.num_states, loss=stats.loss,
                             accuracy=stats.accuracy, train_seconds=stats.seconds, train_steps=stats.num_steps,
-                            correction_spread=stats.correction_spread)
+                            correction_spread=stats.correction_spread, encoder_health=stats.encoder_health)
 
     def _collect(self, r: int, t0: float) -> tuple[int | None, tuple[int, ...]]:
         """Collect and commit round ``r``; ``(tuples, failed task ids)``, or ``(None, ())`` when it was
@@ -437,10 +442,15 @@ def format_round(m: RoundMetrics) -> str:
     spread = m.correction_spread
     line = (f"round {m.round_index}: {collected} in {m.collection_seconds:.1f}s, buffer {m.buffer_tuples}, "
             f"train {m.train_seconds:.1f}s loss {m.loss:.4f} acc {m.accuracy:.3f}"
-            + ("" if spread is None else f" corr-spread {spread:.3f}") + f" | train tasks {curve}")
+            + ("" if spread is None else f" corr-spread {spread:.3f}")
+            + (f" {format_health(m.encoder_health)}" if m.encoder_health else "") + f" | train tasks {curve}")
     if spread is not None and spread < 1e-6:
         line += ("\nwarning: the correction module's output no longer varies between attempts (dead units);"
                  " the policy cannot use corrections")
+    for h in m.encoder_health:
+        if h.output_dead:
+            line += (f"\nwarning: all {h.output_units} output units of the {h.encoder} encoder are dead (never positive);"
+                     " the policy no longer sees its input (model.linear_encodings keeps encodings linear)")
     return line
 
 
@@ -454,6 +464,8 @@ def _log_round(run_dir: Path, tb, m: RoundMetrics) -> None:
         tb.add_scalar("train/accuracy", m.accuracy, r)
         if m.correction_spread is not None:
             tb.add_scalar("train/correction_spread", m.correction_spread, r)
+        for h in m.encoder_health:
+            tb.add_scalar(f"health/dead_fraction_{h.encoder}", h.dead_units / max(h.units, 1), r)
         tb.add_scalar("collect/seconds", m.collection_seconds, r)
         tb.add_scalar("train/seconds", m.train_seconds, r)
         for k, v in enumerate(m.completion_by_corrections):

@@ -43,6 +43,7 @@ from gpl_dist.config import ConfigError, TrainingConfig
 from gpl_dist.models.gpl import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
 from learner.batches import TensorView
+from learner.health import PROBE_STATES, EncoderHealth, encoder_health
 
 
 def resolve_device(name: str) -> torch.device:
@@ -69,6 +70,8 @@ class RoundStats:
             over the attempts with corrections in the round's last batch; 0 means the module's
             output no longer depends on the corrections (dead units) and the policy cannot use
             them. None when the batch had fewer than two such attempts or the variant has none.
+        encoder_health: dead ReLU units of each conditioning encoder after the round, over up to
+            ``learner.health.PROBE_STATES`` states of the view (``learner.health``); () for MIVOA.
     """
 
     loss: float
@@ -77,6 +80,7 @@ class RoundStats:
     num_steps: int
     seconds: float
     correction_spread: float | None = None
+    encoder_health: tuple[EncoderHealth, ...] = ()
 
 
 def flatten_parameters(model: nn.Module) -> tuple[nn.Parameter, torch.Tensor]:
@@ -232,8 +236,18 @@ class Learner:
         self._average_batchnorm_statistics()
         self.model.eval()
         spread = None if last_conditioning is None else self.correction_spread(last_conditioning)
+        seconds = time.perf_counter() - start
         return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,
-                          num_steps=steps, seconds=time.perf_counter() - start, correction_spread=spread)
+                          num_steps=steps, seconds=seconds, correction_spread=spread,
+                          encoder_health=self.encoder_health(tv))
+
+    def encoder_health(self, tv: TensorView) -> tuple[EncoderHealth, ...]:
+        """See ``RoundStats.encoder_health``: states spread evenly over the view (no random draw, so
+        the training's random stream is untouched)."""
+        if tv.num_states == 0:
+            return ()
+        idx = torch.linspace(0, tv.num_states - 1, min(tv.num_states, PROBE_STATES)).long().unique()
+        return encoder_health(self.model, self._gather(tv, idx.to(tv.observations.device))[2])
 
     def correction_spread(self, cond) -> float | None:
         """See ``RoundStats.correction_spread``."""

@@ -1,5 +1,6 @@
 """The learner's optimiser over flattened parameters, its batch prefetching and its determinism."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +111,43 @@ def test_correction_spread_reports_a_dead_correction_module(tmp_path):
     assert "cannot use corrections" in line
     no_corrections = Learner(build_model(get_domain("multiroom"), "instruction_only", seed=0), _cfg())
     assert no_corrections.correction_spread(cond) is None
+
+
+def test_encoder_health_counts_dead_units_and_the_round_line_warns_of_a_dead_encoding(tmp_path):
+    from learner.batches import TensorView
+    from learner.driver import RoundMetrics, format_round
+    from learner.health import encoder_health
+
+    tv = TensorView.from_view(_view(tmp_path))
+    learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg())
+    stats = learner.train_round(tv)
+    health = {h.encoder: h for h in stats.encoder_health}
+    assert set(health) == {"instruction", "correction", "trajectory", "pair"}
+    sizes = get_domain("multiroom").model_sizes  # ReLU units: the MLP layers (the trajectory's state MLP too)
+    assert health["correction"].units == sum(sizes.correction_mlp) and health["correction"].output_units == 4
+    assert health["trajectory"].units == sum(sizes.traj_state_mlp) + sum(sizes.traj_mlp)
+    assert not any(h.output_dead for h in health.values())
+    with torch.no_grad():  # the correction encoding dies whole, as in multi-room suite seed 3's round 0
+        last = learner.model.correction.mlp[-2]
+        last.weight.zero_()
+        last.bias.fill_(-1.0)
+    cond = tv.batch(torch.arange(tv.num_states))[2]
+    dead = {h.encoder: h for h in encoder_health(learner.model, cond)}
+    assert dead["correction"].output_dead and dead["correction"].dead_output_units == 4
+    assert dead["instruction"] == health["instruction"]  # the other encoders are counted as before
+    assert learner.model.training is False  # the count leaves the model's mode as it was
+    m = RoundMetrics(round_index=0, collected_tuples=10, failed_tasks=(), collection_seconds=1.0, load_seconds=0.1,
+                     completion_by_corrections=(0.1,), buffer_tuples=10, loss=1.0, accuracy=0.5, train_seconds=1.0,
+                     train_steps=1, correction_spread=1.0, encoder_health=tuple(dead.values()))
+    line = format_round(m)
+    assert f"c {dead['correction'].dead_units}/20" in line.split("|")[0]
+    assert "all 4 output units of the correction encoder are dead" in line
+    assert RoundMetrics.from_dict(json.loads(json.dumps(m.to_dict()))) == m  # metrics.jsonl round trip
+    # a linear encoding has no ReLU output to die; MIVOA has none of these encoders
+    linear = Learner(build_model(get_domain("multiroom"), seed=0, linear_encodings=True), _cfg())
+    assert all(h.output_units == 0 for h in encoder_health(linear.model, cond))
+    mivoa = build_model(get_domain("multiroom"), "mivoa", seed=0)
+    assert encoder_health(mivoa, cond) == ()
 
 
 @pytest.mark.parametrize("domain_name,tasks,end_aligned", [("multiroom", (1, 2, 3), False), ("relocation", (0, 7), True),

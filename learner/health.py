@@ -1,0 +1,104 @@
+"""Dead ReLU units in GPL's conditioning encoders: a failure that the loss does not show.
+
+A ReLU unit that is never positive gets no gradient and never recovers. When the narrow output of
+an encoder dies whole, the policy stops seeing what the encoder reads (multi-room suite seed 3:
+the 4-unit correction encoding and 31 of 32 pair units died in round 0, and the run never used a
+correction); when most hidden units of the trajectory path die, it reads the earlier attempts
+through a few units (multi-room seed 1, the weak seed). The learner counts them after each round
+on a probe of the round's states; the driver logs the counts and warns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from gpl_dist.models.gpl import GPLPolicy
+
+#: The conditioning encoders of ``gpl_dist.models.gpl.GPLPolicy`` that are checked, in this order.
+ENCODERS = ("instruction", "correction", "trajectory", "pair")
+#: States of the round's training view the counts are taken over (spread evenly over the view).
+PROBE_STATES = 4096
+
+
+@dataclass(frozen=True)
+class EncoderHealth:
+    """Dead units of one conditioning encoder over a probe batch.
+
+    Attributes:
+        encoder: one of ``ENCODERS``.
+        units: ReLU units in the encoder's MLP layers (``nn.ReLU`` modules; convolutions not counted).
+        dead_units: of those, the units never positive over the probe.
+        output_units: units of the encoder's last layer when that layer ends in a ReLU, else 0
+            (a linear encoding cannot die).
+        dead_output_units: of those, the units never positive.
+    """
+
+    encoder: str
+    units: int
+    dead_units: int
+    output_units: int
+    dead_output_units: int
+
+    @property
+    def output_dead(self) -> bool:
+        """Every unit of a ReLU encoding is dead: the policy no longer sees this input."""
+        return self.output_units > 0 and self.dead_output_units == self.output_units
+
+    def to_list(self) -> list:
+        return [self.encoder, self.units, self.dead_units, self.output_units, self.dead_output_units]
+
+    @classmethod
+    def from_list(cls, row: list) -> "EncoderHealth":
+        return cls(str(row[0]), int(row[1]), int(row[2]), int(row[3]), int(row[4]))
+
+
+def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
+    """Dead units of each of ``ENCODERS`` that ``model.encode_conditioning(cond)`` runs; ``()`` for
+    a model without them (MIVOA). The model's mode is left as it was."""
+    if not isinstance(model, GPLPolicy):
+        return ()
+    encoders = [(name, getattr(model, name)) for name in ENCODERS]
+    alive: dict[tuple[str, int], torch.Tensor] = {}
+    hooks = []
+    for name, mod in encoders:
+        relus = [m for m in mod.modules() if isinstance(m, nn.ReLU)]
+        for i, relu in enumerate(relus):
+            def seen(_m, _inp, out, key=(name, i)):
+                positive = (out.detach().reshape(-1, out.shape[-1]) > 0).any(0)
+                alive[key] = positive if key not in alive else alive[key] | positive
+            hooks.append(relu.register_forward_hook(seen))
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            model.encode_conditioning(cond)
+    finally:
+        model.train(was_training)
+        for h in hooks:
+            h.remove()
+    return tuple(_count(name, mod, alive) for name, mod in encoders if any(k[0] == name for k in alive))
+
+
+def _count(name: str, mod: nn.Module, alive: dict[tuple[str, int], torch.Tensor]) -> EncoderHealth:
+    layers = [alive[k].cpu() for k in sorted(k for k in alive if k[0] == name)]
+    units = sum(int(a.numel()) for a in layers)
+    dead = sum(int((~a).sum()) for a in layers)
+    ends_in_relu = _last_layer(mod) is not None and isinstance(_last_layer(mod), nn.ReLU)
+    out = layers[-1] if ends_in_relu else None
+    return EncoderHealth(name, units, dead, 0 if out is None else int(out.numel()),
+                         0 if out is None else int((~out).sum()))
+
+
+def _last_layer(mod: nn.Module) -> nn.Module | None:
+    """The last layer of the encoder's output MLP (``mod.mlp`` for the text, value and trajectory
+    encoders; the pair MLP is itself a Sequential)."""
+    seq = mod if isinstance(mod, nn.Sequential) else getattr(mod, "mlp", None)
+    return seq[-1] if isinstance(seq, nn.Sequential) and len(seq) else None
+
+
+def format_health(health: tuple[EncoderHealth, ...]) -> str:
+    """``dead i 0/32 c 4/20 t 18/52 p 31/32`` (dead / ReLU units per encoder)."""
+    return "dead " + " ".join(f"{h.encoder[0]} {h.dead_units}/{h.units}" for h in health)
