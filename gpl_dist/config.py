@@ -89,6 +89,8 @@ class ModelConfig:
     """Train on the domain's training paraphrases of instructions and corrections (their words join the vocabulary)."""
     linear_encodings: bool = False
     """End GPL's instruction, correction, trajectory and pair encoders linear, not in a ReLU (narrow ReLU outputs can all die)."""
+    conv_batchnorm: bool = False
+    """BatchNorm2d after each 2-D convolution of GPL's grid state encoders, policy and trajectory (the authors' code has it)."""
 
 
 @dataclass(frozen=True)

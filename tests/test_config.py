@@ -88,3 +88,4 @@ def test_a_run_saved_before_an_architecture_switch_keeps_its_architecture(tmp_pa
     saved.write_text("env:\n  domain: multiroom\nmodel:\n  variant: gpl\n")
     model = load_config(saved).model
     assert not model.linear_encodings and not model.policy_batchnorm and not model.trajectory_ends_at_last_state
+    assert not model.conv_batchnorm

@@ -133,6 +133,37 @@ def test_linear_encodings_keep_the_corrections_visible_where_relu_outputs_died()
     assert not torch.allclose(z_linear, z_linear[:1].expand_as(z_linear))
 
 
+def test_conv_batchnorm_normalises_every_grid_convolution_and_acts_per_state_at_rollout_time():
+    """The authors' code puts a BatchNorm after each 2-D convolution of its grid encoders; the
+    switch adds exactly those (policy and trajectory), leaves every other parameter's initial
+    value alone, and in eval mode acts on each state alone."""
+    d = get_domain("multiroom")
+    plain, normed = build_model(d, seed=0), build_model(d, seed=0, conv_batchnorm=True)
+    for encoder, channels in ((normed.state, d.model_sizes.state_channels),
+                              (normed.trajectory.state, d.model_sizes.traj_state_channels)):
+        assert [n.num_features for n in encoder.norms] == list(channels)
+    assert plain.state.norms is None and plain.trajectory.state.norms is None
+    extra = set(normed.state_dict()) - set(plain.state_dict())
+    assert extra and all(".norms." in k for k in extra)
+    assert all(torch.equal(v, normed.state_dict()[k]) for k, v in plain.state_dict().items())
+    opt = torch.optim.Adam(normed.parameters(), lr=1e-3)
+    cond = random_conditioning(d, a=6, k=3)
+    rows = torch.arange(48) % 6
+    for step in range(3):
+        loss = normed(random_obs(d, 48, seed=step), cond, rows).logsumexp(1).mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    for norm in (normed.state.norms[0], normed.trajectory.state.norms[1]):  # both paths were normalised
+        assert not torch.allclose(norm.running_mean, torch.zeros_like(norm.running_mean))
+    normed.eval()
+    obs = random_obs(d, 12, seed=9)
+    with torch.no_grad():
+        together = normed(obs, cond, rows[:12])
+        alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(12)])
+    torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)
+
+
 def test_unreferenced_rows_do_not_matter():
     d = get_domain("multiroom")
     model = build_model(d, "gpl", seed=0).eval()

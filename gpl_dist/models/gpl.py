@@ -215,6 +215,9 @@ class GridStateEncoder(nn.Module):
     (``categories[c]`` codes for channel ``c``), not the raw integers; the convolutions are
     ``Conv2x2`` layers in channels-last form.
 
+    ``batchnorm`` normalises each convolution's output channels (over batch and cells) before its
+    ReLU, as the authors' code does (``model.conv_batchnorm``).
+
     The first layer never builds the one-hot tensor: the projection of a one-hot cell is a sum of
     weight columns, so channels are grouped (``channel_groups``), each group's code combinations
     get a row of summed columns (``group_tables``), and each output cell sums the rows of its
@@ -223,7 +226,7 @@ class GridStateEncoder(nn.Module):
     """
 
     def __init__(self, obs_shape: tuple[int, ...], categories: tuple[int, ...], channels: tuple[int, ...],
-                 mlp_sizes: tuple[int, ...]):
+                 mlp_sizes: tuple[int, ...], batchnorm: bool = False):
         super().__init__()
         h, w, c = obs_shape
         if len(categories) != c:
@@ -248,6 +251,7 @@ class GridStateEncoder(nn.Module):
         self.register_buffer("group_starts", torch.tensor(starts, dtype=torch.long), persistent=False)
         widths = (self.num_inputs, *channels)
         self.convs = nn.ModuleList(Conv2x2(a, b) for a, b in zip(widths[:-1], widths[1:]))
+        self.norms = nn.ModuleList(nn.BatchNorm1d(ch) for ch in channels) if batchnorm else None
         h, w = h - len(channels), w - len(channels)
         self.mlp, self.out_dim = mlp(mlp_sizes, channels[-1] * h * w)
 
@@ -266,10 +270,17 @@ class GridStateEncoder(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         first = self.convs[0]
-        x = torch.relu(_FirstConv2x2.apply(self.group_tables(), self.group_rows(obs)) + first.bias)
-        for conv in self.convs[1:]:
-            x = torch.relu(conv(x))
+        x = torch.relu(self._norm(0, _FirstConv2x2.apply(self.group_tables(), self.group_rows(obs)) + first.bias))
+        for i, conv in enumerate(self.convs[1:], start=1):
+            x = torch.relu(self._norm(i, conv(x)))
         return self.mlp(x.reshape(x.shape[0], -1))
+
+    def _norm(self, layer: int, x: torch.Tensor) -> torch.Tensor:
+        """Channels-last ``x (B, H, W, C)`` through layer ``layer``'s BatchNorm, if any (BatchNorm1d
+        over ``(B * H * W, C)`` is BatchNorm2d's function)."""
+        if self.norms is None:
+            return x
+        return self.norms[layer](x.reshape(-1, x.shape[-1])).reshape(x.shape)
 
 
 class VectorStateEncoder(nn.Module):
@@ -319,11 +330,11 @@ class ValueEncoder(nn.Module):
 class TrajectoryEncoder(nn.Module):
     """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
 
-    def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True):
+    def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True, conv_batchnorm: bool = False):
         super().__init__()
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
-                                          sizes.traj_state_mlp)
+                                                     sizes.traj_state_mlp, conv_batchnorm)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         steps = domain.trajectory_samples
@@ -344,7 +355,8 @@ class GPLPolicy(nn.Module):
     """The GPL network for one domain; ``variant`` selects the paper's baselines and ablations."""
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
-                 policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False):
+                 policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
+                 conv_batchnorm: bool = False):
         super().__init__()
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
@@ -365,12 +377,12 @@ class GPLPolicy(nn.Module):
         self.correction: TextEncoder | ValueEncoder = (
             ValueEncoder(1, sizes.correction_mlp, relu_out) if variant == "gpr"
             else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp, relu_out))
-        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out)
+        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out, conv_batchnorm)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
                                   final_activation=sizes.pair_final_relu and relu_out)
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels,
-                                                     sizes.state_mlp)
+                                                     sizes.state_mlp, conv_batchnorm)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         self.conditioning_dim = self.instruction.out_dim + pair_dim
@@ -441,17 +453,18 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
                 policy_batchnorm: bool = False, paraphrases: bool = False,
-                linear_encodings: bool = False) -> "PolicyNetwork":
+                linear_encodings: bool = False, conv_batchnorm: bool = False) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
-    ``linear_encodings``: see ``gpl_dist.config.ModelConfig`` (GPL's encoders; MIVOA has its own)."""
+    ``linear_encodings``, ``conv_batchnorm``: see ``gpl_dist.config.ModelConfig`` (GPL's encoders; MIVOA
+    has its own)."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
     def make() -> "PolicyNetwork":
         if variant in MIVOA_VARIANTS:
             return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
-        return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings)
+        return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -465,7 +478,7 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
     mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
-                       linear_encodings=model_cfg.linear_encodings)
+                       linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
