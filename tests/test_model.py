@@ -162,6 +162,10 @@ def test_conv_batchnorm_normalises_every_grid_convolution_and_acts_per_state_at_
         together = normed(obs, cond, rows[:12])
         alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(12)])
     torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)
+    # the MIVOA baseline's grid encoder gets the same normalisation (comparable baselines)
+    mivoa = build_model(d, "mivoa", seed=0, conv_batchnorm=True)
+    assert [n.num_features for n in mivoa.state.norms] == list(d.model_sizes.state_channels)
+    assert build_model(d, "mivoa", seed=0).state.norms is None
 
 
 def test_unreferenced_rows_do_not_matter():

@@ -457,13 +457,13 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
-    ``linear_encodings``, ``conv_batchnorm``: see ``gpl_dist.config.ModelConfig`` (GPL's encoders; MIVOA
-    has its own)."""
+    ``linear_encodings`` (GPL's encoders; MIVOA has its own), ``conv_batchnorm`` (every grid state
+    encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
     def make() -> "PolicyNetwork":
         if variant in MIVOA_VARIANTS:
-            return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases)
+            return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
         return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm)
 
     if seed is not None:

@@ -75,7 +75,7 @@ class MIVOAPolicy(nn.Module):
     numeric_full_information = False
 
     def __init__(self, domain: DomainSpec, variant: str = "mivoa", embedding_dim: int = 16,
-                 policy_batchnorm: bool = False, paraphrases: bool = False):
+                 policy_batchnorm: bool = False, paraphrases: bool = False, conv_batchnorm: bool = False):
         super().__init__()
         if variant not in MIVOA_VARIANTS:
             raise ValueError(f"MIVOA variant must be one of {MIVOA_VARIANTS}, got {variant!r}")
@@ -86,7 +86,7 @@ class MIVOAPolicy(nn.Module):
         if len(domain.obs_shape) == 3:
             h, w, c = domain.obs_shape
             self.state: nn.Module = GridStateEncoder((h, w, 2 * c), _categories(domain) * 2, sizes.state_channels,
-                                                     sizes.state_mlp)
+                                                     sizes.state_mlp, conv_batchnorm)
         else:
             self.state = VectorStateEncoder((2 * domain.obs_shape[0],))
         self.conditioning_dim = self.instruction.out_dim
