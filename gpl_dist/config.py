@@ -90,7 +90,7 @@ class ModelConfig:
     linear_encodings: bool = False
     """End GPL's instruction, correction, trajectory and pair encoders linear, not in a ReLU (narrow ReLU outputs can all die)."""
     conv_batchnorm: bool = False
-    """BatchNorm2d after each 2-D convolution of the grid state encoders (policy, trajectory, MIVOA's), as the authors' code."""
+    """BatchNorm2d after each 2-D conv of the grid state encoders (policy, trajectory, MIVOA's), as in the authors' code."""
 
 
 @dataclass(frozen=True)
