@@ -35,6 +35,9 @@ class EncoderHealth:
         output_units: units of the encoder's last layer when that layer ends in a ReLU, else 0
             (a linear encoding cannot die).
         dead_output_units: of those, the units never positive.
+        dead_layers: ReLU layers whose every unit is dead (0 in metrics written before it was
+            recorded). One is enough to make the encoding the same for every input: the layers
+            run one after another.
     """
 
     encoder: str
@@ -42,6 +45,13 @@ class EncoderHealth:
     dead_units: int
     output_units: int
     dead_output_units: int
+    dead_layers: int = 0
+
+    @property
+    def constant(self) -> bool:
+        """A whole ReLU layer is dead: the encoding no longer depends on the encoder's input (a
+        linear encoding too), so the policy no longer sees that input."""
+        return self.dead_layers > 0
 
     @property
     def output_dead(self) -> bool:
@@ -49,11 +59,11 @@ class EncoderHealth:
         return self.output_units > 0 and self.dead_output_units == self.output_units
 
     def to_list(self) -> list:
-        return [self.encoder, self.units, self.dead_units, self.output_units, self.dead_output_units]
+        return [self.encoder, self.units, self.dead_units, self.output_units, self.dead_output_units, self.dead_layers]
 
     @classmethod
     def from_list(cls, row: list) -> "EncoderHealth":
-        return cls(str(row[0]), int(row[1]), int(row[2]), int(row[3]), int(row[4]))
+        return cls(str(row[0]), int(row[1]), int(row[2]), int(row[3]), int(row[4]), int(row[5]) if len(row) > 5 else 0)
 
 
 def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
@@ -90,7 +100,7 @@ def _count(name: str, mod: nn.Module, alive: dict[tuple[str, int], torch.Tensor]
     ends_in_relu = _last_layer(mod) is not None and isinstance(_last_layer(mod), nn.ReLU)
     out = layers[-1] if ends_in_relu else None
     return EncoderHealth(name, units, dead, 0 if out is None else int(out.numel()),
-                         0 if out is None else int((~out).sum()))
+                         0 if out is None else int((~out).sum()), sum(not bool(a.any()) for a in layers))
 
 
 def _last_layer(mod: nn.Module) -> nn.Module | None:

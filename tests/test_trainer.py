@@ -1,5 +1,6 @@
 """The learner's optimiser over flattened parameters, its batch prefetching and its determinism."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -116,7 +117,7 @@ def test_correction_spread_reports_a_dead_correction_module(tmp_path):
 def test_encoder_health_counts_dead_units_and_the_round_line_warns_of_a_dead_encoding(tmp_path):
     from learner.batches import TensorView
     from learner.driver import RoundMetrics, format_round
-    from learner.health import encoder_health
+    from learner.health import EncoderHealth, encoder_health
 
     tv = TensorView.from_view(_view(tmp_path))
     learner = Learner(build_model(get_domain("multiroom"), seed=0), _cfg())
@@ -143,9 +144,21 @@ def test_encoder_health_counts_dead_units_and_the_round_line_warns_of_a_dead_enc
     assert f"c {dead['correction'].dead_units}/20" in line.split("|")[0]
     assert "all 4 output units of the correction encoder are dead" in line
     assert RoundMetrics.from_dict(json.loads(json.dumps(m.to_dict()))) == m  # metrics.jsonl round trip
-    # a linear encoding has no ReLU output to die; MIVOA has none of these encoders
+    assert dead["correction"].constant and dead["correction"].dead_layers >= 1
+    # metrics written before dead_layers was recorded read it as 0
+    assert EncoderHealth.from_list(["pair", 32, 3, 0, 0]) == EncoderHealth("pair", 32, 3, 0, 0, 0)
+    # a linear encoding has no ReLU output to die, but it is constant once a hidden layer dies whole
+    # (the instruction encoder of two multi-room seeds with the shipped network)
     linear = Learner(build_model(get_domain("multiroom"), seed=0, linear_encodings=True), _cfg())
     assert all(h.output_units == 0 for h in encoder_health(linear.model, cond))
+    with torch.no_grad():
+        hidden = linear.model.instruction.mlp[0]
+        hidden.weight.zero_()
+        hidden.bias.fill_(-1.0)
+    instruction = {h.encoder: h for h in encoder_health(linear.model, cond)}["instruction"]
+    assert instruction.constant and not instruction.output_dead and instruction.dead_units >= 16
+    warned = format_round(dataclasses.replace(m, encoder_health=(instruction,)))
+    assert "every unit of a hidden layer of the instruction encoder is dead" in warned
     mivoa = build_model(get_domain("multiroom"), "mivoa", seed=0)
     assert encoder_health(mivoa, cond) == ()
 
