@@ -146,22 +146,10 @@ def test_conv_batchnorm_normalises_every_grid_convolution_and_acts_per_state_at_
     extra = set(normed.state_dict()) - set(plain.state_dict())
     assert extra and all(".norms." in k for k in extra)
     assert all(torch.equal(v, normed.state_dict()[k]) for k, v in plain.state_dict().items())
-    opt = torch.optim.Adam(normed.parameters(), lr=1e-3)
-    cond = random_conditioning(d, a=6, k=3)
-    rows = torch.arange(48) % 6
-    for step in range(3):
-        loss = normed(random_obs(d, 48, seed=step), cond, rows).logsumexp(1).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+    _train_a_few_steps(normed, d, steps=3)
     for norm in (normed.state.norms[0], normed.trajectory.state.norms[1]):  # both paths were normalised
         assert not torch.allclose(norm.running_mean, torch.zeros_like(norm.running_mean))
-    normed.eval()
-    obs = random_obs(d, 12, seed=9)
-    with torch.no_grad():
-        together = normed(obs, cond, rows[:12])
-        alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(12)])
-    torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)
+    _assert_acts_per_state(normed, d, num_states=12)
     # the MIVOA baseline's grid encoder gets the same normalisation (comparable baselines)
     mivoa = build_model(d, "mivoa", seed=0, conv_batchnorm=True)
     assert [n.num_features for n in mivoa.state.norms] == list(d.model_sizes.state_channels)
@@ -287,22 +275,30 @@ def test_policy_batchnorm_is_opt_in_and_acts_per_state_at_rollout_time():
     with pytest.raises(RuntimeError):
         normed.load_state_dict(plain.state_dict())
     # a few training steps move the running statistics away from their initial (0, 1)
-    opt = torch.optim.Adam(normed.parameters(), lr=1e-3)
-    cond = random_conditioning(d, a=6, k=3)
-    rows = torch.arange(48) % 6
-    for step in range(5):
-        loss = normed(random_obs(d, 48, seed=step), cond, rows).logsumexp(1).mean()
+    _train_a_few_steps(normed, d, steps=5)
+    assert not torch.allclose(normed.head[0][1].running_mean, torch.zeros(256))
+    _assert_acts_per_state(normed, d, num_states=48)
+
+
+def _train_a_few_steps(model, d, steps: int) -> None:
+    opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+    cond, rows = random_conditioning(d, a=6, k=3), torch.arange(48) % 6
+    for step in range(steps):
+        loss = model(random_obs(d, 48, seed=step), cond, rows).logsumexp(1).mean()
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert not torch.allclose(normed.head[0][1].running_mean, torch.zeros(256))
-    # in eval mode a state's action distribution must not depend on which other states share its
-    # batch (workers batch over whatever tasks are still running)
-    normed.eval()
-    obs = random_obs(d, 48, seed=9)
+
+
+def _assert_acts_per_state(model, d, num_states: int) -> None:
+    """In eval mode a state's action distribution must not depend on which other states share its
+    batch (workers batch over whatever tasks are still running)."""
+    model.eval()
+    cond, rows = random_conditioning(d, a=6, k=3), torch.arange(num_states) % 6
+    obs = random_obs(d, num_states, seed=9)
     with torch.no_grad():
-        together = normed(obs, cond, rows)
-        alone = torch.cat([normed(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(48)])
+        together = model(obs, cond, rows)
+        alone = torch.cat([model(obs[i:i + 1], cond, rows[i:i + 1]) for i in range(num_states)])
     torch.testing.assert_close(together, alone, rtol=1e-5, atol=1e-5)
 
 
