@@ -6,7 +6,8 @@ encoder reads (multi-room suite seed 3 of the former network, ReLU encodings wit
 the 4-unit correction encoding and 31 of 32 pair units died in round 0, and the run never used a
 correction); when most hidden units of the trajectory path die, it reads the earlier attempts
 through a few units (seed 1 of that network, the weak seed). The learner counts them after each round
-on a probe of the round's states; the driver logs the counts and warns.
+on a probe of the round's states; the driver logs the counts and warns. A unit that is positive but
+the same for every input counts as alive here, though it carries nothing either.
 """
 
 from __future__ import annotations
