@@ -98,8 +98,7 @@ def _count(name: str, mod: nn.Module, alive: dict[tuple[str, int], torch.Tensor]
     layers = [alive[k].cpu() for k in sorted(k for k in alive if k[0] == name)]
     units = sum(int(a.numel()) for a in layers)
     dead = sum(int((~a).sum()) for a in layers)
-    ends_in_relu = _last_layer(mod) is not None and isinstance(_last_layer(mod), nn.ReLU)
-    out = layers[-1] if ends_in_relu else None
+    out = layers[-1] if isinstance(_last_layer(mod), nn.ReLU) else None
     return EncoderHealth(name, units, dead, 0 if out is None else int(out.numel()),
                          0 if out is None else int((~out).sum()), sum(not bool(a.any()) for a in layers))
 
