@@ -28,6 +28,19 @@ import numpy as np
 import torch
 
 
+def shipped_multiroom_model():
+    """``(ModelConfig, network)``: the multi-room network that ``configs/multiroom.yaml`` ships,
+    freshly initialised (seed 0), so the rollouts run the forward a real run runs."""
+    from pathlib import Path
+
+    from gpl_dist.config import load_config
+    from gpl_dist.domains import get_domain
+    from gpl_dist.models.gpl import build_model_from_config
+
+    model_cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / "multiroom.yaml").model
+    return model_cfg, build_model_from_config(get_domain("multiroom"), model_cfg, seed=0)
+
+
 def bare_env_rate(seconds: float, seed: int = 0) -> float:
     from gpl_dist.domains import get_domain
 
@@ -56,8 +69,7 @@ def bare_env_two_processes(seconds: float) -> float:
 
 def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, tasks_per_unit: int) -> tuple[float, int]:
     from gpl_dist.config import CollectionConfig, config_from_dict
-    from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+    from gpl_dist.models.gpl import state_dict_to_numpy
     from learner.driver import make_units
     from storage import commit_round
     from workers.ray_pool import RayCollector
@@ -65,8 +77,9 @@ def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, ta
 
     root = tempfile.mkdtemp(prefix="gpl-collect-bench-")
     cfg = config_from_dict({"collection": {"tasks_per_unit": tasks_per_unit, "num_corrections": corrections}})
-    weights = state_dict_to_numpy(build_model(get_domain("multiroom"), seed=0))
-    settings = RolloutSettings(collection=CollectionConfig(num_corrections=corrections))
+    model_cfg, model = shipped_multiroom_model()
+    weights = state_dict_to_numpy(model)
+    settings = RolloutSettings(collection=CollectionConfig(num_corrections=corrections), model=model_cfg)
     collector = RayCollector("multiroom", settings, root, "bench", num_workers)
     try:
         # round 0 warms up (actors start, import torch, fill the expert's distance-map caches for
@@ -87,11 +100,10 @@ def policy_forward_rate(batch: int, seconds: float) -> float:
     """States/s of the batched policy forward alone (one process), as a worker runs it each step."""
     from gpl_dist.allocator import keep_freed_memory
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model
 
     keep_freed_memory()
     d = get_domain("multiroom")
-    model = build_model(d, seed=0).eval()
+    model = shipped_multiroom_model()[1].eval()
     rng = np.random.default_rng(0)
     obs = torch.from_numpy((rng.random((batch,) + d.obs_shape) * np.array(d.obs_categories)).astype(np.uint8))
     z = torch.zeros(batch, model.conditioning_dim)
@@ -108,10 +120,10 @@ def naive_rate(tasks: tuple[int, ...], corrections: int) -> float:
     from gpl_dist.corrections import make_corrector
     from gpl_dist.domains import get_domain
     from gpl_dist.experts import make_expert
-    from gpl_dist.models.gpl import Conditioning, build_model
+    from gpl_dist.models.gpl import Conditioning
 
     d = get_domain("multiroom")
-    model = build_model(d, seed=0).eval()
+    model = shipped_multiroom_model()[1].eval()
     oracle = make_corrector("multiroom")
     vocab = d.vocabulary
     n, t0 = 0, time.perf_counter()
