@@ -74,10 +74,13 @@ def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
         return ()
     encoders = [(name, getattr(model, name)) for name in ENCODERS]
     alive: dict[tuple[str, int], torch.Tensor] = {}
+    output_layer: dict[str, int] = {}  # the index of the ReLU that is the encoder's last layer, if one is
     hooks = []
     for name, mod in encoders:
         relus = [m for m in mod.modules() if isinstance(m, nn.ReLU)]
         for i, relu in enumerate(relus):
+            if relu is _last_layer(mod):
+                output_layer[name] = i
             def seen(_m, _inp, out, key=(name, i)):
                 positive = (out.detach().reshape(-1, out.shape[-1]) > 0).any(0)
                 alive[key] = positive if key not in alive else alive[key] | positive
@@ -91,14 +94,14 @@ def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
         model.train(was_training)
         for h in hooks:
             h.remove()
-    return tuple(_count(name, mod, alive) for name, mod in encoders if any(k[0] == name for k in alive))
+    return tuple(_count(name, alive, output_layer.get(name)) for name, _ in encoders if any(k[0] == name for k in alive))
 
 
-def _count(name: str, mod: nn.Module, alive: dict[tuple[str, int], torch.Tensor]) -> EncoderHealth:
+def _count(name: str, alive: dict[tuple[str, int], torch.Tensor], output_layer: int | None) -> EncoderHealth:
     layers = [alive[k].cpu() for k in sorted(k for k in alive if k[0] == name)]
     units = sum(int(a.numel()) for a in layers)
     dead = sum(int((~a).sum()) for a in layers)
-    out = layers[-1] if isinstance(_last_layer(mod), nn.ReLU) else None
+    out = alive[(name, output_layer)].cpu() if output_layer is not None else None
     return EncoderHealth(name, units, dead, 0 if out is None else int(out.numel()),
                          0 if out is None else int((~out).sum()), sum(not bool(a.any()) for a in layers))
 

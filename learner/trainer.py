@@ -40,7 +40,7 @@ from torch import nn
 
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import ConfigError, TrainingConfig
-from gpl_dist.models.gpl import Conditioning
+from gpl_dist.models.gpl import Conditioning, GPLPolicy
 from gpl_dist.models.mivoa import PreviousStep
 from learner.batches import TensorView
 from learner.health import PROBE_STATES, EncoderHealth, encoder_health
@@ -244,10 +244,10 @@ class Learner:
     def encoder_health(self, tv: TensorView) -> tuple[EncoderHealth, ...]:
         """See ``RoundStats.encoder_health``: states spread evenly over the view (no random draw, so
         the training's random stream is untouched)."""
-        if tv.num_states == 0:
+        if tv.num_states == 0 or not isinstance(self.model, GPLPolicy):
             return ()
         idx = torch.linspace(0, tv.num_states - 1, min(tv.num_states, PROBE_STATES)).long().unique()
-        return encoder_health(self.model, self._gather(tv, idx.to(tv.observations.device))[2])
+        return encoder_health(self.model, tv.batch(idx.to(tv.observations.device))[2].to(self.device))
 
     def correction_spread(self, cond) -> float | None:
         """See ``RoundStats.correction_spread``."""
