@@ -209,7 +209,7 @@ def trained_run_dir(out: str | Path, entry: str) -> Path:
 
 @dataclass(frozen=True)
 class Pretrained:
-    """The trained instruction-only policy ``rl-finetune`` starts from."""
+    """An entry's trained policy (``rl-finetune`` starts from the instruction-only entry's)."""
 
     weights: Mapping[str, Any]
     """Its weights as numpy arrays (``state_dict_to_numpy``)."""
@@ -219,24 +219,27 @@ class Pretrained:
     """``policy_fingerprint(weights)``, recorded in every result made from it."""
 
 
-def load_pretrained(out: str | Path, entry: str) -> Pretrained:
-    """The trained policy of an instruction-only entry (its training seed 0)."""
+def _trained(out: str | Path, entry: str) -> Pretrained:
+    """An entry's trained policy (its training seed 0): weights, ``model`` section, fingerprint."""
     from gpl_dist.models.gpl import state_dict_to_numpy
     from learner.evaluate import load_trained_policy
 
     cfg, model, _ = load_trained_policy(trained_run_dir(out, entry))
-    if cfg.model.variant != "instruction_only":
-        raise ConfigError(f"rl-finetune starts from an instruction-only policy; entry '{entry}' is {cfg.model.variant}")
     weights = state_dict_to_numpy(model)
     return Pretrained(weights, cfg.model, policy_fingerprint(weights))
 
 
+def load_pretrained(out: str | Path, entry: str) -> Pretrained:
+    """The trained policy of an instruction-only entry (its training seed 0)."""
+    policy = _trained(out, entry)
+    if policy.model.variant != "instruction_only":
+        raise ConfigError(f"rl-finetune starts from an instruction-only policy; entry '{entry}' is {policy.model.variant}")
+    return policy
+
+
 def trained_fingerprint(out: str | Path, entry: str) -> str:
     """``policy_fingerprint`` of an entry's trained policy (its training seed 0)."""
-    from gpl_dist.models.gpl import state_dict_to_numpy
-    from learner.evaluate import load_trained_policy
-
-    return policy_fingerprint(state_dict_to_numpy(load_trained_policy(trained_run_dir(out, entry))[1]))
+    return _trained(out, entry).fingerprint
 
 
 def run_attempts_job(job: AttemptsJob, plan: RLPlan, out: str | Path) -> dict:
