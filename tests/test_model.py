@@ -156,6 +156,35 @@ def test_conv_batchnorm_normalises_every_grid_convolution_and_acts_per_state_at_
     assert build_model(d, "mivoa", seed=0).state.norms is None
 
 
+@pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("relocation", "full_information")])
+def test_instruction_layernorm_keeps_the_instruction_visible_where_its_hidden_relus_died(domain_name, variant):
+    """Beside the policy BatchNorm, training pushed every hidden pre-activation of multi-room's
+    instruction encoder below zero (a uniform shift; docs/history.md): the encoding was then the
+    same for every instruction. A LayerNorm before those ReLUs removes such a shift per sample."""
+    d = get_domain(domain_name)
+    plain = build_model(d, variant, seed=0, linear_encodings=True).eval()
+    normed = build_model(d, variant, seed=0, linear_encodings=True, instruction_layernorm=True).eval()
+    hidden = len(d.model_sizes.instruction_mlp) - 1
+    assert sum(isinstance(m, torch.nn.LayerNorm) for m in normed.instruction.mlp) == hidden
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in plain.modules())
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in (*normed.correction.modules(), *normed.head.modules()))
+    cond = random_conditioning(d, a=6, k=1, seed=5)
+    if variant == "full_information":
+        cond = _replace(cond, instruction_values=torch.rand(6, len(d.full_information_values(0))))
+    width = normed.instruction.out_dim
+    for model in (plain, normed):
+        assert _z(model, cond)[:, :width].std(0).max() > 1e-4  # alive: instructions encode apart
+        with torch.no_grad():
+            model.instruction.mlp[0].bias -= 100.0  # every hidden unit pushed below zero
+    assert torch.allclose(_z(plain, cond)[:, :width], _z(plain, cond)[:1, :width].expand(6, -1))
+    assert _z(normed, cond)[:, :width].std(0).max() > 1e-4
+    _assert_acts_per_state(normed, d, num_states=12)
+    one = random_conditioning(d, a=1, k=1, seed=6)  # a training batch may hold one attempt row
+    if variant == "full_information":
+        one = _replace(one, instruction_values=torch.rand(1, len(d.full_information_values(0))))
+    assert normed.train()(random_obs(d, 4, seed=1), one, torch.zeros(4, dtype=torch.long)).shape == (4, d.num_actions)
+
+
 def test_unreferenced_rows_do_not_matter():
     d = get_domain("multiroom")
     model = build_model(d, "gpl", seed=0).eval()

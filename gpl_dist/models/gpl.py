@@ -77,15 +77,18 @@ class Conditioning:
 
 
 def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
-        batchnorm: bool = False) -> tuple[nn.Sequential, int]:
+        batchnorm: bool = False, hidden_layernorm: bool = False) -> tuple[nn.Sequential, int]:
     """Linear layers of ``sizes``, ReLU between them (and after the last with ``final_activation``);
-    ``batchnorm`` puts a BatchNorm1d after every linear layer."""
+    ``batchnorm`` puts a BatchNorm1d after every linear layer, ``hidden_layernorm`` a LayerNorm after
+    every hidden one (per sample: it holds for a batch of one attempt row as in training)."""
     layers: list[nn.Module] = []
     d = in_dim
     for i, h in enumerate(sizes):
         layers.append(nn.Linear(d, h))
         if batchnorm:
             layers.append(nn.BatchNorm1d(h))
+        elif hidden_layernorm and i < len(sizes) - 1:
+            layers.append(nn.LayerNorm(h))
         if final_activation or i < len(sizes) - 1:
             layers.append(nn.ReLU())
         d = h
@@ -305,11 +308,12 @@ class TextEncoder(nn.Module):
     """Token ids ``(B, L)`` -> vector: shared embeddings, 1-D CNN (kernel 2), MLP."""
 
     def __init__(self, embedding: nn.Embedding, max_tokens: int, conv: int, mlp_sizes: tuple[int, ...],
-                 final_activation: bool = True):
+                 final_activation: bool = True, hidden_layernorm: bool = False):
         super().__init__()
         self.embedding = embedding
         self.conv = nn.Conv1d(embedding.embedding_dim, conv, kernel_size=2)
-        self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1), final_activation)
+        self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1), final_activation,
+                                     hidden_layernorm=hidden_layernorm)
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
         x = torch.relu(conv1d_k2_channels_last(self.conv, self.embedding(ids)))  # (B, L-1, conv)
@@ -319,9 +323,10 @@ class TextEncoder(nn.Module):
 class ValueEncoder(nn.Module):
     """float32 ``(B, F)`` numbers -> vector: an MLP (numeric full information)."""
 
-    def __init__(self, width: int, mlp_sizes: tuple[int, ...], final_activation: bool = True):
+    def __init__(self, width: int, mlp_sizes: tuple[int, ...], final_activation: bool = True,
+                 hidden_layernorm: bool = False):
         super().__init__()
-        self.mlp, self.out_dim = mlp(mlp_sizes, width, final_activation)
+        self.mlp, self.out_dim = mlp(mlp_sizes, width, final_activation, hidden_layernorm=hidden_layernorm)
 
     def forward(self, values: torch.Tensor) -> torch.Tensor:
         return self.mlp(values.float())
@@ -356,7 +361,7 @@ class GPLPolicy(nn.Module):
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
                  policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
-                 conv_batchnorm: bool = False):
+                 conv_batchnorm: bool = False, instruction_layernorm: bool = False):
         super().__init__()
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
@@ -369,10 +374,11 @@ class GPLPolicy(nn.Module):
         self.numeric_full_information = variant == "full_information" and domain.full_information_values is not None
         if self.numeric_full_information:
             width = len(domain.full_information_values(0))  # type: ignore[misc]
-            self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp, relu_out)
+            self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp, relu_out,
+                                                                        instruction_layernorm)
         else:
             self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp,
-                                           relu_out)
+                                           relu_out, instruction_layernorm)
         # GPR: the summed reward of each earlier attempt, in place of its correction
         self.correction: TextEncoder | ValueEncoder = (
             ValueEncoder(1, sizes.correction_mlp, relu_out) if variant == "gpr"
@@ -453,18 +459,20 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
                 policy_batchnorm: bool = False, paraphrases: bool = False,
-                linear_encodings: bool = False, conv_batchnorm: bool = False) -> "PolicyNetwork":
+                linear_encodings: bool = False, conv_batchnorm: bool = False,
+                instruction_layernorm: bool = False) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
-    ``linear_encodings`` (GPL's encoders; MIVOA has its own), ``conv_batchnorm`` (every grid state
-    encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
+    ``linear_encodings`` and ``instruction_layernorm`` (GPL's encoders; MIVOA has its own),
+    ``conv_batchnorm`` (every grid state encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
     def make() -> "PolicyNetwork":
         if variant in MIVOA_VARIANTS:
             return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
-        return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm)
+        return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm,
+                         instruction_layernorm)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -478,7 +486,8 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
     mapping from config to architecture, so learner, evaluation and analyses cannot disagree."""
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
-                       linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm)
+                       linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm,
+                       instruction_layernorm=model_cfg.instruction_layernorm)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
