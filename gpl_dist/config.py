@@ -91,8 +91,8 @@ class ModelConfig:
     """End GPL's instruction, correction, trajectory and pair encoders linear, not in a ReLU (narrow ReLU outputs can all die)."""
     conv_batchnorm: bool = False
     """BatchNorm2d after each 2-D conv of the grid state encoders (policy, trajectory, MIVOA's), as in the authors' code."""
-    instruction_layernorm: bool = False
-    """LayerNorm before each hidden ReLU of GPL's instruction encoder (beside policy_batchnorm those ReLUs can all die)."""
+    encoder_layernorm: bool = False
+    """LayerNorm before each hidden ReLU of GPL's instruction, correction, trajectory and pair MLPs (narrow layers die whole)."""
 
 
 @dataclass(frozen=True)

@@ -156,32 +156,59 @@ def test_conv_batchnorm_normalises_every_grid_convolution_and_acts_per_state_at_
     assert build_model(d, "mivoa", seed=0).state.norms is None
 
 
-@pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("relocation", "full_information")])
-def test_instruction_layernorm_keeps_the_instruction_visible_where_its_hidden_relus_died(domain_name, variant):
-    """Beside the policy BatchNorm, training pushed every hidden pre-activation of multi-room's
-    instruction encoder below zero (a uniform shift; docs/history.md): the encoding was then the
-    same for every instruction. A LayerNorm before those ReLUs removes such a shift per sample."""
+def _pushed_below_zero(model, encoder: str):
+    """``model`` with every hidden pre-activation of ``encoder``'s MLP shifted by -100: the uniform
+    shift that training gave the dead layers (docs/results.md)."""
+    mods = {"instruction": model.instruction.mlp, "correction": model.correction.mlp,
+            "trajectory": model.trajectory.mlp, "pair": model.pair}
+    with torch.no_grad():
+        mods[encoder][0].bias -= 100.0
+    return model
+
+
+@pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("relocation", "full_information"),
+                                                 ("relocation", "gpr")])
+def test_encoder_layernorm_keeps_each_encoding_visible_where_its_hidden_relus_died(domain_name, variant):
+    """Training pushed every hidden pre-activation of multi-room's 16-unit instruction layer (one
+    seed) and trajectory layer (another) below zero: that encoding was then the same for every input.
+    A LayerNorm before each hidden ReLU of the four conditioning MLPs removes such a shift per sample."""
     d = get_domain(domain_name)
     plain = build_model(d, variant, seed=0, linear_encodings=True).eval()
-    normed = build_model(d, variant, seed=0, linear_encodings=True, instruction_layernorm=True).eval()
-    hidden = len(d.model_sizes.instruction_mlp) - 1
-    assert sum(isinstance(m, torch.nn.LayerNorm) for m in normed.instruction.mlp) == hidden
-    assert not any(isinstance(m, torch.nn.LayerNorm) for m in plain.modules())
-    assert not any(isinstance(m, torch.nn.LayerNorm) for m in (*normed.correction.modules(), *normed.head.modules()))
-    cond = random_conditioning(d, a=6, k=1, seed=5)
+    normed = build_model(d, variant, seed=0, linear_encodings=True, encoder_layernorm=True).eval()
+    mlps = (normed.instruction.mlp, normed.correction.mlp, normed.trajectory.mlp, normed.pair)
+    hidden = [len(d.model_sizes.instruction_mlp), len(d.model_sizes.correction_mlp), len(d.model_sizes.traj_mlp),
+              len(d.model_sizes.pair_mlp)]
+    assert [sum(isinstance(m, torch.nn.LayerNorm) for m in mlp) for mlp in mlps] == [n - 1 for n in hidden]
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in (*plain.modules(), *normed.head.modules()))
+    norms = {n for n, m in normed.named_modules() if isinstance(m, torch.nn.LayerNorm)}
+    kept = [p for n, p in normed.named_parameters() if n.rsplit(".", 1)[0] not in norms]
+    assert all(torch.equal(a, b) for a, b in zip(plain.parameters(), kept, strict=True))  # same initial weights
+    cond = _replace(random_conditioning(d, a=6, k=1, seed=5), slots=torch.arange(6).reshape(6, 1))  # one each
     if variant == "full_information":
         cond = _replace(cond, instruction_values=torch.rand(6, len(d.full_information_values(0))))
+    if variant == "gpr":
+        cond = _replace(cond, correction_values=torch.randn(cond.correction_ids.shape[0]) * 50)
     width = normed.instruction.out_dim
-    for model in (plain, normed):
-        assert _z(model, cond)[:, :width].std(0).max() > 1e-4  # alive: instructions encode apart
-        with torch.no_grad():
-            model.instruction.mlp[0].bias -= 100.0  # every hidden unit pushed below zero
-    assert torch.allclose(_z(plain, cond)[:, :width], _z(plain, cond)[:1, :width].expand(6, -1))
-    assert _z(normed, cond)[:, :width].std(0).max() > 1e-4
+    parts = {"instruction": slice(0, width), "correction": slice(width, None), "trajectory": slice(width, None),
+             "pair": slice(width, None)}
+    for encoder, part in parts.items():
+        if encoder != "instruction" and not normed.uses_corrections:
+            continue
+        for model in (plain, normed):
+            model.load_state_dict(build_model(d, variant, seed=0, linear_encodings=True,
+                                              encoder_layernorm=model is normed).state_dict())
+            assert _z(model, cond)[:, part].std(0).max() > 1e-4, encoder  # alive: inputs encode apart
+        dead = _z(_pushed_below_zero(plain, encoder), cond)[:, part]
+        alive = _z(_pushed_below_zero(normed, encoder), cond)[:, part]
+        if encoder in ("instruction", "pair"):  # the whole encoding is constant
+            assert torch.allclose(dead, dead[:1].expand_as(dead)), encoder
+        assert alive.std(0).max() > 1e-4, encoder
     _assert_acts_per_state(normed, d, num_states=12)
     one = random_conditioning(d, a=1, k=1, seed=6)  # a training batch may hold one attempt row
     if variant == "full_information":
         one = _replace(one, instruction_values=torch.rand(1, len(d.full_information_values(0))))
+    if variant == "gpr":
+        one = _replace(one, correction_values=torch.randn(one.correction_ids.shape[0]))
     assert normed.train()(random_obs(d, 4, seed=1), one, torch.zeros(4, dtype=torch.long)).shape == (4, d.num_actions)
 
 

@@ -335,7 +335,8 @@ class ValueEncoder(nn.Module):
 class TrajectoryEncoder(nn.Module):
     """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
 
-    def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True, conv_batchnorm: bool = False):
+    def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True, conv_batchnorm: bool = False,
+                 hidden_layernorm: bool = False):
         super().__init__()
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
@@ -344,7 +345,8 @@ class TrajectoryEncoder(nn.Module):
             self.state = VectorStateEncoder(domain.obs_shape)
         steps = domain.trajectory_samples
         self.conv = nn.Conv1d(self.state.out_dim, sizes.traj_conv, kernel_size=min(2, steps))
-        self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1), final_activation)
+        self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1), final_activation,
+                                     hidden_layernorm=hidden_layernorm)
 
     def forward(self, traj: torch.Tensor) -> torch.Tensor:
         b, s = traj.shape[:2]
@@ -361,7 +363,7 @@ class GPLPolicy(nn.Module):
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
                  policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
-                 conv_batchnorm: bool = False, instruction_layernorm: bool = False):
+                 conv_batchnorm: bool = False, encoder_layernorm: bool = False):
         super().__init__()
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
@@ -375,17 +377,18 @@ class GPLPolicy(nn.Module):
         if self.numeric_full_information:
             width = len(domain.full_information_values(0))  # type: ignore[misc]
             self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp, relu_out,
-                                                                        instruction_layernorm)
+                                                                        encoder_layernorm)
         else:
             self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp,
-                                           relu_out, instruction_layernorm)
+                                           relu_out, encoder_layernorm)
         # GPR: the summed reward of each earlier attempt, in place of its correction
         self.correction: TextEncoder | ValueEncoder = (
-            ValueEncoder(1, sizes.correction_mlp, relu_out) if variant == "gpr"
-            else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp, relu_out))
-        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out, conv_batchnorm)
+            ValueEncoder(1, sizes.correction_mlp, relu_out, encoder_layernorm) if variant == "gpr"
+            else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp, relu_out,
+                             encoder_layernorm))
+        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out, conv_batchnorm, encoder_layernorm)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
-                                  final_activation=sizes.pair_final_relu and relu_out)
+                                  final_activation=sizes.pair_final_relu and relu_out, hidden_layernorm=encoder_layernorm)
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels,
                                                      sizes.state_mlp, conv_batchnorm)
@@ -460,11 +463,11 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
                 policy_batchnorm: bool = False, paraphrases: bool = False,
                 linear_encodings: bool = False, conv_batchnorm: bool = False,
-                instruction_layernorm: bool = False) -> "PolicyNetwork":
+                encoder_layernorm: bool = False) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
-    ``linear_encodings`` and ``instruction_layernorm`` (GPL's encoders; MIVOA has its own),
+    ``linear_encodings`` and ``encoder_layernorm`` (GPL's encoders; MIVOA has its own),
     ``conv_batchnorm`` (every grid state encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
@@ -472,7 +475,7 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
         if variant in MIVOA_VARIANTS:
             return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
         return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm,
-                         instruction_layernorm)
+                         encoder_layernorm)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -487,7 +490,7 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
                        linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm,
-                       instruction_layernorm=model_cfg.instruction_layernorm)
+                       encoder_layernorm=model_cfg.encoder_layernorm)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
