@@ -166,6 +166,15 @@ def _pushed_below_zero(model, encoder: str):
     return model
 
 
+def _with_values(cond, d, variant: str):
+    """``cond`` with the numbers ``variant`` reads: full information's values, or GPR's reward sums."""
+    if variant == "full_information":
+        return _replace(cond, instruction_values=torch.rand(cond.slots.shape[0], len(d.full_information_values(0))))
+    if variant == "gpr":
+        return _replace(cond, correction_values=torch.randn(cond.correction_ids.shape[0]) * 50)
+    return cond
+
+
 @pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("relocation", "full_information"),
                                                  ("relocation", "gpr")])
 def test_encoder_layernorm_keeps_each_encoding_visible_where_its_hidden_relus_died(domain_name, variant):
@@ -173,8 +182,12 @@ def test_encoder_layernorm_keeps_each_encoding_visible_where_its_hidden_relus_di
     seed) and trajectory layer (another) below zero: that encoding was then the same for every input.
     A LayerNorm before each hidden ReLU of the four conditioning MLPs removes such a shift per sample."""
     d = get_domain(domain_name)
-    plain = build_model(d, variant, seed=0, linear_encodings=True).eval()
-    normed = build_model(d, variant, seed=0, linear_encodings=True, encoder_layernorm=True).eval()
+
+    def fresh():
+        return (build_model(d, variant, seed=0, linear_encodings=True).eval(),
+                build_model(d, variant, seed=0, linear_encodings=True, encoder_layernorm=True).eval())
+
+    plain, normed = fresh()
     mlps = (normed.instruction.mlp, normed.correction.mlp, normed.trajectory.mlp, normed.pair)
     hidden = [len(d.model_sizes.instruction_mlp), len(d.model_sizes.correction_mlp), len(d.model_sizes.traj_mlp),
               len(d.model_sizes.pair_mlp)]
@@ -183,20 +196,16 @@ def test_encoder_layernorm_keeps_each_encoding_visible_where_its_hidden_relus_di
     norms = {n for n, m in normed.named_modules() if isinstance(m, torch.nn.LayerNorm)}
     kept = [p for n, p in normed.named_parameters() if n.rsplit(".", 1)[0] not in norms]
     assert all(torch.equal(a, b) for a, b in zip(plain.parameters(), kept, strict=True))  # same initial weights
-    cond = _replace(random_conditioning(d, a=6, k=1, seed=5), slots=torch.arange(6).reshape(6, 1))  # one each
-    if variant == "full_information":
-        cond = _replace(cond, instruction_values=torch.rand(6, len(d.full_information_values(0))))
-    if variant == "gpr":
-        cond = _replace(cond, correction_values=torch.randn(cond.correction_ids.shape[0]) * 50)
+    cond = _with_values(_replace(random_conditioning(d, a=6, k=1, seed=5), slots=torch.arange(6).reshape(6, 1)),
+                        d, variant)  # one correction each
     width = normed.instruction.out_dim
     parts = {"instruction": slice(0, width), "correction": slice(width, None), "trajectory": slice(width, None),
              "pair": slice(width, None)}
     for encoder, part in parts.items():
         if encoder != "instruction" and not normed.uses_corrections:
             continue
+        plain, normed = fresh()
         for model in (plain, normed):
-            model.load_state_dict(build_model(d, variant, seed=0, linear_encodings=True,
-                                              encoder_layernorm=model is normed).state_dict())
             assert _z(model, cond)[:, part].std(0).max() > 1e-4, encoder  # alive: inputs encode apart
         dead = _z(_pushed_below_zero(plain, encoder), cond)[:, part]
         alive = _z(_pushed_below_zero(normed, encoder), cond)[:, part]
@@ -204,11 +213,7 @@ def test_encoder_layernorm_keeps_each_encoding_visible_where_its_hidden_relus_di
             assert torch.allclose(dead, dead[:1].expand_as(dead)), encoder
         assert alive.std(0).max() > 1e-4, encoder
     _assert_acts_per_state(normed, d, num_states=12)
-    one = random_conditioning(d, a=1, k=1, seed=6)  # a training batch may hold one attempt row
-    if variant == "full_information":
-        one = _replace(one, instruction_values=torch.rand(1, len(d.full_information_values(0))))
-    if variant == "gpr":
-        one = _replace(one, correction_values=torch.randn(one.correction_ids.shape[0]))
+    one = _with_values(random_conditioning(d, a=1, k=1, seed=6), d, variant)  # a training batch may hold one row
     assert normed.train()(random_obs(d, 4, seed=1), one, torch.zeros(4, dtype=torch.long)).shape == (4, d.num_actions)
 
 
