@@ -184,6 +184,15 @@ def cmd_suite_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_suite_restore(args: argparse.Namespace) -> int:
+    """``gpl-dist suite restore``: copy a report's archived runs into a suite output that lacks them."""
+    from gpl_dist.suite_archive import restore_runs
+
+    restored = restore_runs(args.archive, args.out)
+    print(f"restored {len(restored)} run(s) into {args.out}" + "".join(f"\n  {p}" for p in restored))
+    return 0
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     """``gpl-dist render``: a task's start state as PNG, an attempt as GIF, or a trained policy's
     successive attempts with the corrections between them (``--run-dir``)."""
@@ -376,6 +385,11 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("suite_out", help="the suite's folder of run dirs")
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
     q.set_defaults(func=cmd_suite_report)
+    q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
+                             "where 'suite run' then skips them")
+    q.add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")
+    q.add_argument("--out", required=True, help="the suite's folder of run dirs; run dirs already there are kept")
+    q.set_defaults(func=cmd_suite_restore)
 
     p = sub.add_parser("render", help="draw a task (PNG), an attempt (GIF), or a trained policy's attempts (GIF)")
     p.add_argument("--env", choices=domain_names())

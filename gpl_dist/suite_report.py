@@ -8,7 +8,10 @@ deviation over training seeds (the last column says which seeds; one seed has no
 methods not built, or entries not run yet, are kept with the paper's number and a dash, so the
 report always shows every row of the paper.
 
-Writes ``report.md`` (plots beside it as PNG) and ``report.html`` (the same, plots inline).
+Writes ``report.md`` (plots beside it as PNG) and ``report.html`` (the same, plots inline), and
+first archives the runs' evidence beside them in ``runs/`` (``gpl_dist.suite_archive``): the report
+is computed from that archive, so every number traces to a file kept with the report, and a report
+written into the same folder again keeps the runs archived before (a lost machine loses no row).
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from typing import Any
 
 from gpl_dist.errors import RunDirError
 from gpl_dist.suite import EVAL_DEFAULTS, RECORD_VERSION
+
+#: The report folder's archive of the runs it reads (``gpl_dist.suite_archive``).
+ARCHIVE_DIR = "runs"
 
 
 @dataclass(frozen=True)
@@ -282,9 +288,11 @@ def plot_table(results: list[RunResult], table: PaperTable, path: Path) -> bool:
     return True
 
 
-def provenance_markdown(results: list[RunResult], suite_out: Path) -> str:
-    """Per run: its dir, config, code commits, wall times and evaluation files."""
-    lines = ["| entry | seed | run dir (config: `config.yaml` there) | code commit(s) | train min | evaluations (file, min) |",
+def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:
+    """Per run: its archived dir (relative to ``report_dir``), config, code commits, wall times
+    and evaluation files."""
+    lines = ["| entry | seed | archived run dir (config: `config.yaml` there) | code commit(s) | train min | "
+             "evaluations (file, min) |",
              "|---|---|---|---|---|---|"]
     runs = sorted({(r.entry, r.seed, r.run_dir) for r in results})
     for entry, seed, run_dir in runs:
@@ -292,7 +300,8 @@ def provenance_markdown(results: list[RunResult], suite_out: Path) -> str:
         evals = ", ".join(f"{r.evaluation}: `{r.eval_file.name}` ({r.eval_seconds / 60:.1f})" for r in mine)
         first = mine[0]
         commits = ", ".join(first.commits)
-        lines.append(f"| {entry} | {seed} | `{run_dir}` | {commits} | {first.train_seconds / 60:.1f} | {evals} |")
+        where = run_dir.relative_to(report_dir) if run_dir.is_relative_to(report_dir) else run_dir
+        lines.append(f"| {entry} | {seed} | `{where}` | {commits} | {first.train_seconds / 60:.1f} | {evals} |")
     train_s = sum({r.run_dir: r.train_seconds for r in results}.values())
     eval_s = sum(r.eval_seconds for r in results)
     lines.append(f"\nWall time of these runs: {train_s / 3600:.1f} h training, {eval_s / 3600:.2f} h evaluation, "
@@ -331,9 +340,15 @@ def evaluations_markdown(results: list[RunResult]) -> str:
 
 def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     """Write ``out/report.md`` (with PNG plots) and ``out/report.html`` (plots inline)."""
+    from gpl_dist.suite_archive import archive_runs
+
     suite_out, out = Path(suite_out), Path(out)
-    results = collect_results(suite_out)
-    out.mkdir(parents=True, exist_ok=True)
+    if not suite_out.is_dir():
+        raise RunDirError(f"no suite output at {suite_out}")
+    archive = out / ARCHIVE_DIR
+    archive.mkdir(parents=True, exist_ok=True)
+    archive_runs(suite_out, archive)
+    results = collect_results(archive)
     parts, html_parts = [_INTRO.format(suite_out=suite_out)], [f"<p>{html.escape(_INTRO_HTML.format(suite_out=suite_out))}</p>"]
     for table in PAPER_TABLES:
         md = table_markdown(results, table)
@@ -347,7 +362,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
     from gpl_dist.suite_rl import sample_complexity_section
 
-    rl_md, rl_png = sample_complexity_section(suite_out, out)
+    rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive)
     if rl_md:
         parts += ["## Sample complexity: RL per task against GPL and GPR (the paper's figure)", rl_md]
         html_parts += ["<h2>Sample complexity</h2>", _md_table_html(rl_md)]
@@ -357,7 +372,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
         html_parts.append(f'<img alt="sample complexity" src="data:image/png;base64,{data}">')
     effort = effort_markdown(results)
     settings = evaluations_markdown(results)
-    prov = provenance_markdown(results, suite_out)
+    prov = provenance_markdown(results, out)
     effort_intro = ("What the corrections cost on the test tasks (evaluation 'test'): corrections and words of "
                     "correction before the first success, over the solved tasks; the fraction never solved within "
                     "the budget; the area under the completion curve over its length.")
@@ -373,7 +388,9 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     return md_path, html_path
 
 
-_INTRO = ("Written by `gpl-dist suite report {suite_out}` from the runs' `eval*.json` files. Each cell: our mean "
+_INTRO = ("Written by `gpl-dist suite report {suite_out}` from the runs' `eval*.json` files, archived beside this "
+          "report in `runs/` with each run's config, metrics and final weights (with those archived by earlier "
+          "reports into this folder). Each cell: our mean "
           "completion over training seeds (each seed's own value is its mean over the evaluation seeds, see Evaluation "
           "settings), ± the standard deviation over training seeds, and the paper's number in parentheses. '—': not "
           "run yet or not built; the last column says which.")

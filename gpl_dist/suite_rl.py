@@ -343,14 +343,15 @@ def load_results(out: str | Path) -> tuple[list, list[dict], dict[str, int]]:
     return curves, attempts, commits
 
 
-def sample_complexity_section(suite_out: str | Path, out: str | Path) -> tuple[str, Path | None]:
-    """The report's sample-complexity section (Markdown) and its figure, from ``OUT/rl``; an
-    empty text when nothing has run."""
+def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from: str | Path | None = None
+                              ) -> tuple[str, Path | None]:
+    """The report's sample-complexity section (Markdown) and its figure, from ``OUT/rl`` (or the
+    same files in ``read_from``, the report's archive of them); an empty text when nothing has run."""
     import numpy as np
 
     from learner.rl import log_points, summarize
 
-    curves, attempts, commits = load_results(suite_out)
+    curves, attempts, commits = load_results(read_from if read_from is not None else suite_out)
     if not curves and not attempts:
         return "", None
     domains = sorted({c.job.domain for c in curves} | {a["domain"] for a in attempts})

@@ -220,3 +220,45 @@ def test_the_effort_table_says_when_a_run_was_evaluated_before_effort_was_record
                                                                 "unsolved_fraction": 0.5, "completion_auc": 0.3})])
     assert "| new | 2.000 | 6.000 | 0.500 | 0.300 | 1 |" in md
     assert "| old | — | — | — | — | none: evaluated before the effort was recorded" in md
+
+
+def test_the_report_archives_its_runs_so_a_lost_run_folder_loses_no_row_and_restores_as_done(tmp_path, capsys):
+    """The report keeps each run's evidence (record, config, metrics, eval files, final weights;
+    never the buffer) in REPORT/runs and reads its numbers from there; the run folder can then go:
+    a later report into the same folder keeps the rows, and ``suite restore`` gives a new run
+    folder in which the suite counts those runs done and trains nothing."""
+    path = write_suite(tmp_path / "suite.yaml", {
+        "multiroom-gpl": entry(seeds=(0, 1), **{"training.num_rounds": 1}),
+        "multiroom-instruction": entry(**{"model.variant": "instruction_only", "training.num_rounds": 1})})
+    suite = load_suite(path)
+    first, report = tmp_path / "first", tmp_path / "report"
+    run_suite(suite, first, serial=True, progress=False, only=("multiroom-gpl",))
+    assert main(["suite", "report", str(first), "--out", str(report)]) == 0
+    archived = report / "runs" / "multiroom-gpl" / "seed1"
+    assert sorted(p.relative_to(archived).as_posix() for p in archived.rglob("*") if p.is_file()) == [
+        "checkpoints/latest.pt", "config.yaml", "eval.json", "metrics.jsonl", "suite-run.json"]
+    gpl_row = next(line for line in (report / "report.md").read_text().splitlines() if line.startswith("| GPL |"))
+    assert "| `runs/multiroom-gpl/seed1` |" in (report / "report.md").read_text()
+
+    # the first run folder is lost; another one trains only the instruction-only entry
+    for run in plan(suite, first):
+        for p in sorted(run.run_dir.rglob("*"), reverse=True):
+            p.unlink() if p.is_file() else p.rmdir()
+    second = tmp_path / "second"
+    run_suite(suite, second, serial=True, progress=False, only=("multiroom-instruction",))
+    assert main(["suite", "report", str(second), "--out", str(report)]) == 0
+    md = (report / "report.md").read_text()
+    assert next(line for line in md.splitlines() if line.startswith("| GPL |")) == gpl_row
+    assert "| `runs/multiroom-instruction/seed0` |" in md
+
+    # restore into the second folder: the archived runs are done there, nothing trains again
+    capsys.readouterr()
+    assert main(["suite", "restore", str(report / "runs"), "--out", str(second)]) == 0
+    assert capsys.readouterr().out.startswith("restored 2 run(s)")
+    stamp = (second / "multiroom-instruction" / "seed0" / "metrics.jsonl").stat().st_mtime_ns
+    assert [s for _, s in run_suite(suite, second, serial=True, progress=False)] == ["done"] * 3
+    assert (second / "multiroom-instruction" / "seed0" / "metrics.jsonl").stat().st_mtime_ns == stamp
+    assert not (second / "multiroom-gpl" / "seed0" / "buffer").exists()
+    capsys.readouterr()
+    assert main(["suite", "restore", str(report / "runs"), "--out", str(second)]) == 0  # twice: nothing to do
+    assert capsys.readouterr().out.startswith("restored 0 run(s)")
