@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import filecmp
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -53,40 +54,62 @@ def _run_files(run_dir: Path) -> list[Path]:
     return [Path(n) for n in names]
 
 
-def _copy_if_changed(src: Path, dst: Path) -> bool:
-    """Copy ``src`` to ``dst`` (atomically: a killed copy leaves the old file) unless equal; True if copied."""
-    if dst.is_file() and filecmp.cmp(src, dst, shallow=False):
-        return False
+def _copy(src: Path, dst: Path) -> None:
+    """Copy ``src`` to ``dst`` through a temporary name (a killed copy leaves no half file under ``dst``)."""
     dst.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dst.with_name(f".{dst.name}.tmp")
+    tmp = dst.with_name(f".{dst.name}.tmp-{os.getpid()}")
     shutil.copyfile(src, tmp)
     tmp.replace(dst)
-    return True
+
+
+def _same_files(src: Path, dst: Path, names: list[Path]) -> bool:
+    """Whether ``dst`` holds exactly ``names``, each equal to its file in ``src``."""
+    held = sorted(p.relative_to(dst) for p in dst.rglob("*") if p.is_file()) if dst.is_dir() else []
+    return held == sorted(names) and all(filecmp.cmp(src / n, dst / n, shallow=False) for n in names)
+
+
+def _put_run(src: Path, dst: Path, names: list[Path]) -> None:
+    """Make ``dst`` hold exactly ``names`` copied from ``src``, whole: staged beside it, then
+    swapped in (a killed copy leaves the old run dir, or none, never a mix of two versions)."""
+    staging, old = dst.with_name(f".{dst.name}.staging"), dst.with_name(f".{dst.name}.old")
+    shutil.rmtree(staging, ignore_errors=True)
+    for name in names:
+        _copy(src / name, staging / name)
+    if dst.exists():
+        shutil.rmtree(old, ignore_errors=True)
+        dst.replace(old)
+    staging.replace(dst)
+    shutil.rmtree(old, ignore_errors=True)
 
 
 def archive_runs(suite_out: str | Path, archive: str | Path) -> int:
     """Copy the evidence of every evaluated run (and the RL results) of ``suite_out`` into
-    ``archive``; returns how many files changed. Runs already archived and absent from
-    ``suite_out`` stay: the archive only grows or is brought up to date."""
+    ``archive``; returns how many runs and RL files changed. A run whose files differ from its
+    archived copy replaces that copy whole (no file of the older version stays); runs and RL
+    results archived before and absent from ``suite_out`` stay."""
     src_root, dst_root = Path(suite_out), Path(archive)
     if src_root.resolve() == dst_root.resolve():
         return 0
     changed = 0
     for run_dir in _evaluated_runs(src_root):
-        rel = run_dir.relative_to(src_root)
-        for name in _run_files(run_dir):
-            changed += _copy_if_changed(run_dir / name, dst_root / rel / name)
+        target, names = dst_root / run_dir.relative_to(src_root), _run_files(run_dir)
+        if not _same_files(run_dir, target, names):
+            _put_run(run_dir, target, names)
+            changed += 1
     extra = sorted((src_root / "rl").rglob("*.json")) if (src_root / "rl").is_dir() else []
     if (src_root / "suite.yaml").is_file():
         extra.append(src_root / "suite.yaml")
     for path in extra:
-        changed += _copy_if_changed(path, dst_root / path.relative_to(src_root))
+        target = dst_root / path.relative_to(src_root)
+        if not (target.is_file() and filecmp.cmp(path, target, shallow=False)):
+            _copy(path, target)
+            changed += 1
     return changed
 
 
-def restore_runs(archive: str | Path, suite_out: str | Path) -> list[Path]:
+def restore_runs(archive: str | Path, suite_out: str | Path, log=print) -> list[Path]:
     """Copy every archived run dir (and RL result) that ``suite_out`` lacks into it; returns the
-    run dirs restored. Nothing already in ``suite_out`` is overwritten."""
+    run dirs restored. Nothing already in ``suite_out`` is overwritten (``log`` names what is kept)."""
     src_root, dst_root = Path(archive), Path(suite_out)
     if not src_root.is_dir():
         raise RunDirError(f"no archive at {src_root}")
@@ -94,15 +117,12 @@ def restore_runs(archive: str | Path, suite_out: str | Path) -> list[Path]:
     for run_dir in _evaluated_runs(src_root):
         target = dst_root / run_dir.relative_to(src_root)
         if target.exists():
+            log(f"kept {target}: it exists (remove it to restore the archived run)")
             continue
-        staging = target.with_name(f".{target.name}.restoring")  # a killed restore leaves no half run dir
-        shutil.rmtree(staging, ignore_errors=True)
-        for name in _run_files(run_dir):
-            _copy_if_changed(run_dir / name, staging / name)
-        staging.replace(target)
+        _put_run(run_dir, target, _run_files(run_dir))
         restored.append(target)
     for path in sorted((src_root / "rl").rglob("*.json")) if (src_root / "rl").is_dir() else []:
         target = dst_root / path.relative_to(src_root)
         if not target.exists():
-            _copy_if_changed(path, target)
+            _copy(path, target)
     return restored

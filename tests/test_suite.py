@@ -254,11 +254,26 @@ def test_the_report_archives_its_runs_so_a_lost_run_folder_loses_no_row_and_rest
     # restore into the second folder: the archived runs are done there, nothing trains again
     capsys.readouterr()
     assert main(["suite", "restore", str(report / "runs"), "--out", str(second)]) == 0
-    assert capsys.readouterr().out.startswith("restored 2 run(s)")
+    printed = capsys.readouterr().out
+    assert f"kept {second / 'multiroom-instruction' / 'seed0'}: it exists" in printed
+    assert "restored 2 run(s)" in printed
     stamp = (second / "multiroom-instruction" / "seed0" / "metrics.jsonl").stat().st_mtime_ns
     assert [s for _, s in run_suite(suite, second, serial=True, progress=False)] == ["done"] * 3
     assert (second / "multiroom-instruction" / "seed0" / "metrics.jsonl").stat().st_mtime_ns == stamp
     assert not (second / "multiroom-gpl" / "seed0" / "buffer").exists()
     capsys.readouterr()
     assert main(["suite", "restore", str(report / "runs"), "--out", str(second)]) == 0  # twice: nothing to do
-    assert capsys.readouterr().out.startswith("restored 0 run(s)")
+    assert "restored 0 run(s)" in capsys.readouterr().out
+
+    # a run evaluated again replaces its archived copy whole: a file it no longer has goes too
+    stale = report / "runs" / "multiroom-instruction" / "seed0" / "eval-old.json"
+    stale.write_text("{}")
+    assert main(["suite", "report", str(second), "--out", str(report)]) == 0
+    assert not stale.exists() and not list((report / "runs").rglob(".*"))
+
+
+def test_the_committed_report_archive_is_not_ignored_by_git():
+    """The archive exists to be committed: no ignore rule may catch it (``runs/`` once did)."""
+    path = "docs/paper-report/runs/multiroom-gpl/seed0/checkpoints/latest.pt"
+    check = subprocess.run(["git", "check-ignore", "-v", path], cwd=REPO, capture_output=True, text=True)
+    assert check.returncode == 1, f"git ignores {path}: {check.stdout.strip()}"
