@@ -93,6 +93,8 @@ class ModelConfig:
     """BatchNorm2d after each 2-D conv of the grid state encoders (policy, trajectory, MIVOA's), as in the authors' code."""
     encoder_layernorm: bool = False
     """LayerNorm before each hidden ReLU of GPL's instruction, correction, trajectory and pair MLPs (narrow layers die whole)."""
+    correction_width: int = 0
+    """Output width of GPL's correction encoder (0: the domain's appendix value, 4 in multi-room; the authors' code: 32)."""
 
 
 @dataclass(frozen=True)
@@ -319,6 +321,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.collection.max_unit_retries >= 0, "collection.max_unit_retries must be >= 0"),
         (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
         (cfg.model.embedding_dim >= 1, "model.embedding_dim must be at least 1"),
+        (cfg.model.correction_width >= 0, "model.correction_width must be >= 0 (0: the domain's appendix value)"),
         (cfg.training.num_rounds >= 1, "training.num_rounds must be at least 1"),
         (cfg.training.num_epochs_per_round >= 0, "training.num_epochs_per_round must be >= 0"),
         (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),

@@ -434,3 +434,21 @@ def test_gpr_reads_each_earlier_attempts_summed_reward_in_place_of_its_correctio
     torch.testing.assert_close(z, other_text)  # the correction's words are not read
     with pytest.raises(ValueError, match="summed reward"):
         model.encode_conditioning(_replace(cond, correction_values=None))
+
+
+@pytest.mark.parametrize("variant", ["gpl", "no_trajectory", "gpr"])
+def test_correction_width_sets_the_correction_encoding_and_defaults_to_the_domains(variant):
+    d = get_domain("multiroom")
+    default, wide = build_model(d, variant, seed=0), build_model(d, variant, seed=0, correction_width=32)
+    assert default.correction.out_dim == d.model_sizes.correction_mlp[-1] == 4
+    assert wide.correction.out_dim == 32
+    # only the correction encoder's last layer and the pair MLP's first layer (which reads it) change shape
+    changed = {k for k, v in default.state_dict().items() if v.shape != wide.state_dict()[k].shape}
+    assert changed and all(k.startswith(("correction.", "pair.")) for k in changed)
+    cond = random_conditioning(d, a=5, k=4)
+    logits = wide(random_obs(d, 7), cond, torch.tensor([0, 0, 1, 4, 3, 2, 2]))
+    assert logits.shape == (7, d.num_actions) and torch.isfinite(logits).all()
+    # a run's config reaches the model through the one mapping
+    from gpl_dist.config import ModelConfig
+    from gpl_dist.models.gpl import build_model_from_config
+    assert build_model_from_config(d, ModelConfig(variant=variant, correction_width=32)).correction.out_dim == 32

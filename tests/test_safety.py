@@ -196,6 +196,7 @@ _PROBES = {
     "env.task_ids=[0,99999]": "env.task_ids [99999] are outside multiroom's tasks 0..3239",
     "env.train_split=trian": "env.train_split must be one of",
     "model.embedding_dim=0": "model.embedding_dim must be at least 1",
+    "model.correction_width=-4": "model.correction_width must be >= 0",
     "training.num_threads=-1": "training.num_threads must be >= 0",
     "collection.max_unit_retries=-1": "collection.max_unit_retries must be >= 0",
     "eval.max_tasks=-2": "eval.max_tasks must be >= 0",

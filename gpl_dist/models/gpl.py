@@ -25,6 +25,7 @@ in place of its correction; the trajectory path stays).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Union
 
@@ -363,12 +364,14 @@ class GPLPolicy(nn.Module):
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
                  policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
-                 conv_batchnorm: bool = False, encoder_layernorm: bool = False):
+                 conv_batchnorm: bool = False, encoder_layernorm: bool = False, correction_width: int = 0):
         super().__init__()
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
         self.variant = variant
         sizes = domain.model_sizes
+        if correction_width:
+            sizes = dataclasses.replace(sizes, correction_mlp=sizes.correction_mlp[:-1] + (correction_width,))
         #: the words this network reads (``DomainSpec.vocabulary_for``): text is encoded with it
         self.vocabulary = vocab = domain.vocabulary_for(paraphrases)
         self.embedding = nn.Embedding(vocab.size, embedding_dim, padding_idx=vocab.pad_id)
@@ -463,11 +466,11 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
                 policy_batchnorm: bool = False, paraphrases: bool = False,
                 linear_encodings: bool = False, conv_batchnorm: bool = False,
-                encoder_layernorm: bool = False) -> "PolicyNetwork":
+                encoder_layernorm: bool = False, correction_width: int = 0) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
-    ``linear_encodings`` and ``encoder_layernorm`` (GPL's encoders; MIVOA has its own),
+    ``linear_encodings``, ``encoder_layernorm`` and ``correction_width`` (GPL's encoders; MIVOA has its own),
     ``conv_batchnorm`` (every grid state encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
     from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
 
@@ -475,7 +478,7 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
         if variant in MIVOA_VARIANTS:
             return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
         return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm,
-                         encoder_layernorm)
+                         encoder_layernorm, correction_width)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -490,7 +493,7 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
                        linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm,
-                       encoder_layernorm=model_cfg.encoder_layernorm)
+                       encoder_layernorm=model_cfg.encoder_layernorm, correction_width=model_cfg.correction_width)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
