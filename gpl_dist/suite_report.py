@@ -360,9 +360,10 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
-    from gpl_dist.suite_rl import sample_complexity_section
+    from gpl_dist.suite_rl import plan_of_copy, sample_complexity_section
 
-    rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive)
+    plan = plan_of_copy(archive / "suite.yaml")  # the suite's latest copy: archived from suite_out just above
+    rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive, plan=plan)
     if rl_md:
         parts += ["## Sample complexity: RL per task against GPL and GPR (the paper's figure)", rl_md]
         html_parts += ["<h2>Sample complexity</h2>", _md_table_html(rl_md)]

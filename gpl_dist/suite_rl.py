@@ -14,7 +14,9 @@ runs every (method, domain, task, seed) not yet done, one after another or as Ra
 A result made from a trained policy (``rl-finetune``'s start, the attempts) records that policy's
 ``policy_fingerprint``; once the entry is trained again, its results are redone. A killed run loses
 only the jobs in flight; running it again does the rest. The report
-(``gpl_dist.suite_report``) draws the figure from these files.
+(``gpl_dist.suite_report``) draws the figure from these files, from those of the suite's ``rl``
+section as it stands only (``load_results``): results of an earlier task list, budget or PPO
+settings stay on disk, are counted as left out and never mix into the medians.
 """
 
 from __future__ import annotations
@@ -324,34 +326,67 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
     return ran + len(jobs)
 
 
-def load_results(out: str | Path) -> tuple[list, list[dict], dict[str, int]]:
-    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl``, and how
-    many of them each code commit made (``unknown`` for results without one)."""
+def plan_of_copy(suite_yaml: str | Path) -> RLPlan | None:
+    """The ``rl`` section of a suite file's copy (``OUT/suite.yaml``, written by ``suite run``),
+    read without resolving its entries' base configs (relative to where the original lies); None
+    when there is no copy or it has no ``rl`` section."""
+    import yaml
+
+    path = Path(suite_yaml)
+    raw = yaml.safe_load(path.read_text()) if path.is_file() else None
+    if not isinstance(raw, dict) or "rl" not in raw:
+        return None
+    return parse_rl_plan(f"{path}: rl", raw["rl"], tuple(raw.get("entries") or ()))
+
+
+def _of_plan(data: dict, key: str, plan: RLPlan) -> bool:
+    """Whether a result file's ``data`` is one of ``plan``'s jobs, made as the plan says now: its
+    job (task, seed, budget) and PPO settings, or for an attempts set its entry, seed and tasks."""
+    from learner.rl import RLJob
+
+    if key.startswith("attempts/"):
+        return (AttemptsJob(data["entry"], data["domain"], data["seed"]) in attempts_jobs(plan)
+                and data["tasks"] == list(plan.tasks[data["domain"]]))
+    job = RLJob(**data["job"])
+    return (job in rl_jobs(plan, (job.method,)) and job.key == key
+            and data.get("settings") == dataclasses.asdict(plan.settings(job.domain)))
+
+
+def load_results(out: str | Path, plan: RLPlan | None = None) -> tuple[list, list[dict], dict[str, int], list[str]]:
+    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl`` (with a
+    ``plan``, only those of its jobs made with its settings), how many of them each code commit made
+    (``unknown`` for results without one), and the keys of the results left out."""
     from learner.rl import RLCurve
 
     root = Path(out) / "rl"
-    curves, attempts = [], []
+    curves, attempts, left_out = [], [], []
     commits: dict[str, int] = {}
     for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
         data = json.loads(path.read_text())
+        key = path.relative_to(root).with_suffix("").as_posix()
+        if plan is not None and not _of_plan(data, key, plan):
+            left_out.append(key)
+            continue
         commit = data.get("commit", "unknown")
         commits[commit] = commits.get(commit, 0) + 1
         if path.parent.name == "attempts":
             attempts.append(data)
         else:
             curves.append(RLCurve.from_json(data))
-    return curves, attempts, commits
+    return curves, attempts, commits, left_out
 
 
-def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from: str | Path | None = None
-                              ) -> tuple[str, Path | None]:
+def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from: str | Path | None = None,
+                              plan: RLPlan | None = None) -> tuple[str, Path | None]:
     """The report's sample-complexity section (Markdown) and its figure, from ``OUT/rl`` (or the
-    same files in ``read_from``, the report's archive of them); an empty text when nothing has run."""
+    same files in ``read_from``, the report's archive of them), with a ``plan`` only the results of
+    its jobs (results of an older task list, budget or PPO settings would mix into the medians);
+    an empty text when nothing has run."""
     import numpy as np
 
     from learner.rl import log_points, summarize
 
-    curves, attempts, commits = load_results(read_from if read_from is not None else suite_out)
+    curves, attempts, commits, left_out = load_results(read_from if read_from is not None else suite_out, plan)
     if not curves and not attempts:
         return "", None
     domains = sorted({c.job.domain for c in curves} | {a["domain"] for a in attempts})
@@ -400,6 +435,9 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from:
     lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "
               "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections.", "",
               f"Code commits of these results (results each): {made_by}."]
+    if left_out:
+        lines += ["", f"Left out: {len(left_out)} result(s) under `rl/` that are not jobs of the suite's `rl` section "
+                  f"as it stands (another task list, budget or PPO settings), e.g. `{left_out[0]}`."]
     png = Path(out) / "sample-complexity.png"
     _plot(fig_rows, png)
     return "\n".join(lines), png

@@ -125,7 +125,7 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     run_suite(suite, out, serial=True, progress=False)
     address = ray_cluster.get_runtime_context().gcs_address
     assert run_rl_plan(suite.rl, out, address=address, log=lambda s: None) == 1 + 2  # GPL's points, rl-finetune x 2 tasks
-    curves, attempts, _ = load_results(out)
+    curves, attempts, _, _ = load_results(out)
     assert sorted(c.job.key for c in curves) == sorted(j.key for j in rl_jobs(suite.rl)) and len(curves) == 4
     assert all(len(c.completion) == 3 for c in curves)
     assert attempts[0]["tasks"] == [69, 180] and np.array(attempts[0]["completion"]).shape == (2, 6)
@@ -164,7 +164,7 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
     lines: list[str] = []
     assert run_rl_plan(plan, tmp_path / "out", serial=True, log=lines.append) == 1  # the one rl-scratch job
     assert any("attempts/gpl-seed0 left for later" in s and "has not finished training yet" in s for s in lines), lines
-    curves, attempts, _ = load_results(tmp_path / "out")
+    curves, attempts, _, _ = load_results(tmp_path / "out")
     assert [c.job.key for c in curves] == ["rl-scratch/multiroom/task69-seed0"] and attempts == []
 
 
@@ -213,3 +213,37 @@ def test_the_table_reads_every_named_column_of_a_long_curve(tmp_path):
     row = next(line for line in md.splitlines() if line.startswith("| multiroom | rl-scratch |")).split("|")
     assert row[8].strip().startswith("0.09") and row[9].strip().startswith("0.95")  # at 100 and at 1000 trajectories
     assert "`abc1234` (2)" in md and png is not None and png.is_file()
+
+
+def test_the_report_reads_only_the_results_of_the_suites_rl_plan(tmp_path):
+    """Results of an older task list, budget or PPO settings stay on disk but out of the medians."""
+    import dataclasses
+
+    from gpl_dist.suite_rl import parse_rl_plan, plan_of_copy, sample_complexity_section, write_result
+    from learner.rl import RLCurve
+
+    plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ())
+    settings = dataclasses.asdict(plan.settings("multiroom"))
+
+    def put(task: int, budget: int, value: float, settings=settings) -> None:
+        curve = RLCurve(RLJob("rl-scratch", "multiroom", task, 0, budget), (value,) * budget, (False,) * budget, 1, 1.0)
+        write_result(tmp_path, curve.job.key, {**curve.to_json(), "settings": settings})
+
+    put(1, 50, 1.0)
+    put(2, 50, 1.0)
+    put(3, 50, 0.0)  # a task the plan no longer lists
+    put(4, 80, 0.0)  # another budget
+    md, _ = sample_complexity_section(tmp_path, tmp_path / "report", plan=plan)
+    row = next(line for line in md.splitlines() if line.startswith("| multiroom | rl-scratch |")).split("|")
+    assert row[3].strip() == "2" and row[4].strip().startswith("1.00")  # two tasks, both at 1.0
+    assert "Left out: 2 result(s)" in md and "task3-seed0" in md
+    put(2, 50, 0.0, settings={**settings, "learning_rate": 0.5})  # other PPO settings: left out too
+    md, _ = sample_complexity_section(tmp_path, tmp_path / "report", plan=plan)
+    assert "Left out: 3 result(s)" in md
+    # without a plan every result counts (a run folder read on its own)
+    md, _ = sample_complexity_section(tmp_path, tmp_path / "report")
+    assert next(line for line in md.splitlines() if line.startswith("| multiroom | rl-scratch |")).split("|")[3].strip() == "4"
+    # the plan a report uses is read from the suite file's copy without resolving its bases
+    (tmp_path / "suite.yaml").write_text("entries: {a: {base: ../nowhere.yaml}}\n"
+                                         "rl: {tasks: {multiroom: [1, 2]}, seeds: [0], trajectories: 50}\n")
+    assert plan_of_copy(tmp_path / "suite.yaml") == plan and plan_of_copy(tmp_path / "none.yaml") is None
