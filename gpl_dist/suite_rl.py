@@ -432,7 +432,8 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from:
         fig_rows[domain] = rows
     seconds = sum(c.seconds for c in curves)
     made_by = ", ".join(f"`{c}` ({n})" for c, n in sorted(commits.items()))
-    lines += ["", f"RL wall time: {seconds / 3600:.1f} CPU-hours over {len(curves)} jobs (one core each). The paper: "
+    lines += ["", f"RL wall time: {seconds / 3600:.1f} hours summed over {len(curves)} jobs (one process each; more than "
+              "their CPU time where other runs shared the cores). The paper: "
               "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections.", "",
               f"Code commits of these results (results each): {made_by}."]
     if left_out:
