@@ -339,16 +339,17 @@ def plan_of_copy(suite_yaml: str | Path) -> RLPlan | None:
     return parse_rl_plan(f"{path}: rl", raw["rl"], tuple(raw.get("entries") or ()))
 
 
-def _of_plan(data: dict, key: str, plan: RLPlan) -> bool:
-    """Whether a result file's ``data`` is one of ``plan``'s jobs, made as the plan says now: its
-    job (task, seed, budget) and PPO settings, or for an attempts set its entry, seed and tasks."""
+def _of_plan(data: dict, key: str, plan: RLPlan, wanted: Mapping[str, Any]) -> bool:
+    """Whether a result file's ``data`` is one of ``plan``'s jobs (``wanted``: key -> job), made as
+    the plan says now: its job (task, seed, budget) and PPO settings, or for an attempts set its
+    entry, seed and tasks."""
     from learner.rl import RLJob
 
-    if key.startswith("attempts/"):
-        return (AttemptsJob(data["entry"], data["domain"], data["seed"]) in attempts_jobs(plan)
-                and data["tasks"] == list(plan.tasks[data["domain"]]))
-    job = RLJob(**data["job"])
-    return (job in rl_jobs(plan, (job.method,)) and job.key == key
+    job = wanted.get(key)
+    if isinstance(job, AttemptsJob):
+        return (AttemptsJob(data["entry"], data["domain"], data["seed"]) == job
+                and data["tasks"] == list(plan.tasks[job.domain]))
+    return (job is not None and RLJob(**data["job"]) == job
             and data.get("settings") == dataclasses.asdict(plan.settings(job.domain)))
 
 
@@ -359,12 +360,13 @@ def load_results(out: str | Path, plan: RLPlan | None = None) -> tuple[list, lis
     from learner.rl import RLCurve
 
     root = Path(out) / "rl"
+    wanted = {j.key: j for j in [*rl_jobs(plan), *attempts_jobs(plan)]} if plan is not None else {}
     curves, attempts, left_out = [], [], []
     commits: dict[str, int] = {}
     for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
         data = json.loads(path.read_text())
         key = path.relative_to(root).with_suffix("").as_posix()
-        if plan is not None and not _of_plan(data, key, plan):
+        if plan is not None and not _of_plan(data, key, plan, wanted):
             left_out.append(key)
             continue
         commit = data.get("commit", "unknown")
