@@ -240,3 +240,25 @@ def test_all_kind_uses_rng_and_words_in_vocabulary():
                                         (-1, -1, "northwest"), (0, 0, "here"), (5, 2, "east"), (2, 5, "south")])
 def test_compass(dx, dy, word):
     assert compass(dx, dy) == word
+
+
+def test_goal_room_apart_words_the_goal_rooms_subgoal_unlike_the_object_rooms():
+    """The kind differs from ``subgoal`` only where the goal room is next: there it says "go to"."""
+    env = fresh()
+    apart, subgoal = make_multiroom_corrector("subgoal_goal_room_apart"), make_multiroom_corrector("subgoal")
+    said = []
+    for x, y, act in ((8, 12, None), (5, 4, None), (5, 4, PICKUP), (9, 9, None), (13, 10, None), (15, 9, None)):
+        go(env, x, y)
+        if act is not None:
+            env.step(act)
+        said.append((subgoal.correct(env, RNG).text, apart.correct(env, RNG)))
+    assert said == [
+        ("enter the blue room", Correction("enter the blue room", "subgoal")),
+        ("pick up the green triangle", Correction("pick up the green triangle", "subgoal")),
+        ("exit the blue room", Correction("exit the blue room", "subgoal")),
+        ("enter the purple room", Correction("go to the purple room", "subgoal")),
+        ("go to the green goal", Correction("go to the green goal", "subgoal")),
+        ("you are done", Correction("you are done", "subgoal")),
+    ]
+    assert set(split_words("go to the purple room")) <= set(VOCABULARY.words)
+    assert make_corrector("multiroom", "subgoal_goal_room_apart").correct(env, RNG).text == "you are done"

@@ -9,6 +9,12 @@ Kinds (``make_multiroom_corrector(kind)``):
 
 - ``"default"`` / ``"subgoal"`` (the paper's): the text of subgoal ``k``, e.g.
   "enter the blue room", "pick up the green triangle" (the authors' ``all_subgoals[5 - left]``).
+- ``"subgoal_goal_room_apart"``: ``subgoal``, but the fourth subgoal (``k = 3``) is said
+  "go to the <goal room> room", so it is worded unlike the first ("enter the <object room>
+  room"), as the authors' code does (``carry <goalroom> door``; the paper's text says "enter").
+  With "enter" for both, a model that sees corrections as an order-free set and no trajectory
+  cannot tell "enter the object's room" from "enter the goal's room" (``research/correction_pairs.py``).
+  The kind recorded is ``subgoal``.
 - ``"directional"``: the compass direction of subgoal ``k``'s target from the agent's final cell,
   ``"<thing> is <dir>"`` with ``dir`` in north, northeast, east, southeast, south, southwest,
   west, northwest (45-degree sectors centred on each; north = -y) or ``here`` (same cell):
@@ -52,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from gpl_dist.envs.multiroom import CORRECTION_KINDS
-from gpl_dist.envs.multiroom_core import DOOR_CELL, REGION_FLAT, XY, compass
+from gpl_dist.envs.multiroom_core import COLOURS, DOOR_CELL, REGION_FLAT, SHAPES, XY, compass
 from gpl_dist.records import Correction
 
 KINDS = CORRECTION_KINDS  # declared with the domain
@@ -72,6 +78,14 @@ def subgoal_correction(env: Any) -> Correction:
     if u.success or k >= 5:
         return Correction(DONE_TEXT, "subgoal")
     return Correction(u.subgoal_texts[k], "subgoal")
+
+
+def subgoal_goal_room_apart_correction(env: Any) -> Correction:
+    """``subgoal_correction``, with the goal room's subgoal said "go to the <goal room> room"."""
+    u, k = _state(env)
+    if k == 3 and not u.success:
+        return Correction(f"go to the {COLOURS[u.task.goal_room]} room", "subgoal")
+    return subgoal_correction(env)
 
 
 def directional_correction(env: Any) -> Correction:
@@ -141,6 +155,7 @@ class MultiRoomCorrector:
         "directional": directional_correction,
         "binary": binary_correction,
         "reward": reward_correction,
+        "subgoal_goal_room_apart": subgoal_goal_room_apart_correction,
     }
 
     def __init__(self, kind: str = "default"):
@@ -166,9 +181,8 @@ _THINGS = ("the object room", "the object", "the exit", "the goal room", "the go
 def phrasings() -> tuple[str, ...]:
     """Every correction a multi-room oracle of a text kind (subgoal, directional, binary) can say:
     the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
-    from gpl_dist.envs.multiroom_core import COLOURS, SHAPES
-
     subgoal = ([f"enter the {c} room" for c in COLOURS] + [f"exit the {c} room" for c in COLOURS]
+               + [f"go to the {c} room" for c in COLOURS]
                + [f"pick up the {c} {s}" for c in COLOURS for s in SHAPES] + [f"go to the {c} goal" for c in COLOURS])
     directional = [f"{thing} is {d}" for thing in _THINGS for d in _COMPASS]
     binary = ["you are in the right room", "you are in the wrong room", "you have the wrong object",

@@ -79,6 +79,9 @@ PARAPHRASES = Paraphrases((
     ParaphraseRule(r"exit the (?P<c>\w+) room", (
         "exit the {c} room", "leave the {c} room", "get out of the {c} room", "go out of the {c} room",
         "walk out of the {c} room")),
+    ParaphraseRule(r"go to the (?P<c>\w+) room", (  # correction kind subgoal_goal_room_apart; no new words
+        "go to the {c} room", "walk to the {c} room", "head for the {c} room", "walk over to the {c} room",
+        "head over to the {c} room")),
     ParaphraseRule(r"go to the (?P<c>\w+) goal", (
         "go to the {c} goal", "walk to the {c} square", "stand on the {c} goal", "go to the {c} square",
         "stand on the {c} square")),
@@ -98,7 +101,7 @@ PARAPHRASES = Paraphrases((
 ))
 
 #: Correction oracle kinds (``gpl_dist.corrections.multiroom``): ``default`` is the paper's subgoal oracle.
-CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward")
+CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward", "subgoal_goal_room_apart")
 
 #: (colour, shape) combinations held out by the ``heldout_*`` splits (paper Table 5).
 HELDOUT_OBJECTS = (("green", "triangle"), ("red", "ball"))
@@ -135,7 +138,9 @@ class MultiRoomEnv(gym.Env):
     (paper default: the first subgoal the attempt never completed), ``directional`` (compass
     direction of that subgoal's target, e.g. "the goal room is southwest"), ``binary`` (yes/no
     facts, e.g. "you are in the wrong room", "you have the wrong object"), ``reward`` (GPR:
-    "reward three of five") and the full-information text (all 5 subgoals joined by "then").
+    "reward three of five"), ``subgoal_goal_room_apart`` (``subgoal`` with the fourth subgoal said
+    "go to the <goal room> room", worded unlike the first as in the authors' code) and the
+    full-information text (all 5 subgoals joined by "then").
 
     ## Observation
     ``Box(0, 255, (7, 7, 6), uint8)``, ``obs[row, col, ch]``; the agent is at ``[3, 3]``,
