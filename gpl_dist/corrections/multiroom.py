@@ -83,7 +83,7 @@ def subgoal_correction(env: Any) -> Correction:
 def subgoal_goal_room_apart_correction(env: Any) -> Correction:
     """``subgoal_correction``, with the goal room's subgoal said "go to the <goal room> room"."""
     u, k = _state(env)
-    if k == 3 and not u.success:
+    if k == 3:  # success leaves no subgoal (k = 5)
         return Correction(f"go to the {COLOURS[u.task.goal_room]} room", "subgoal")
     return subgoal_correction(env)
 
