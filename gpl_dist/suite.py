@@ -140,7 +140,8 @@ def _keys(where: str, mapping: Any, allowed: set[str], required: set[str]) -> No
     _expect(not missing, where, f"missing key '{missing[0] if missing else ''}'")
 
 
-def _seeds(where: str, value: Any) -> tuple[int, ...]:
+def check_seeds(where: str, value: Any) -> tuple[int, ...]:
+    """A list of distinct training or evaluation seeds >= 0; anything else fails in one line naming ``where``."""
     ok = isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in value)
     _expect(bool(ok), where, f"expected a non-empty list of seeds >= 0, got {value!r}")
     _expect(len(set(value)) == len(value), where, f"seeds repeat: {value}")
@@ -155,7 +156,7 @@ def _evaluation(where: str, name: str, raw: Any) -> Evaluation:
                 f"expected {tp.__name__}, got {value!r}")
     phrasings = raw.get("phrasings", "canonical")
     _expect(phrasings in PHRASINGS, f"{where}.phrasings", f"expected one of {', '.join(PHRASINGS)}, got {phrasings!r}")
-    return Evaluation(name, raw["split"], _seeds(f"{where}.seeds", raw["seeds"]), raw["num_corrections"],
+    return Evaluation(name, raw["split"], check_seeds(f"{where}.seeds", raw["seeds"]), raw["num_corrections"],
                       raw["greedy_actions"], raw.get("max_tasks", 0), phrasings)
 
 
@@ -173,7 +174,7 @@ def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[s
     for n in names:
         _expect(n in evaluations, f"{where}.evaluations", f"unknown evaluation '{n}' (known: {', '.join(evaluations)})")
     overrides = tuple((k, v if isinstance(v, str) else json.dumps(v)) for k, v in sets.items())
-    return Entry(name, (folder / raw["base"]).resolve(), overrides, _seeds(f"{where}.seeds", raw["seeds"]), tuple(names))
+    return Entry(name, (folder / raw["base"]).resolve(), overrides, check_seeds(f"{where}.seeds", raw["seeds"]), tuple(names))
 
 
 def load_suite(path: str | Path) -> Suite:

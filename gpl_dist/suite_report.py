@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.errors import RunDirError
-from gpl_dist.suite import EVAL_DEFAULTS, RECORD_VERSION
+from gpl_dist.suite import EVAL_DEFAULTS, RECORD_VERSION, check_seeds
 
 #: The report folder's archive of the runs it reads (``gpl_dist.suite_archive``).
 ARCHIVE_DIR = "runs"
@@ -241,14 +241,43 @@ def _seeds_of(results: list[RunResult], row: PaperRow) -> list[int]:
     return sorted({r.seed for r in results if r.entry == row.entry and r.evaluation == row.evaluation})
 
 
-def _status(results: list[RunResult], row: PaperRow) -> str:
+def planned_seeds(suite_yaml: Path) -> dict[str, tuple[int, ...]]:
+    """Each entry's training seeds in a suite file's copy (``OUT/suite.yaml``, written by ``suite
+    run``), read without resolving base configs (relative to where the original lies); {} when
+    there is no copy."""
+    import yaml
+
+    raw = yaml.safe_load(suite_yaml.read_text()) if suite_yaml.is_file() else None
+    entries = raw.get("entries") if isinstance(raw, dict) else None
+    if not isinstance(entries, dict):
+        return {}
+    return {name: check_seeds(f"{suite_yaml}: entries.{name}.seeds", spec.get("seeds") if isinstance(spec, dict) else None)
+            for name, spec in entries.items()}
+
+
+def _status(results: list[RunResult], row: PaperRow, planned: dict[str, tuple[int, ...]]) -> str:
     if row.entry is None:
         return row.note
     seeds = _seeds_of(results, row)
-    return f"{len(seeds)} training seed(s): {', '.join(map(str, seeds))}" if seeds else "not run yet"
+    missing = [s for s in planned.get(row.entry, ()) if s not in seeds]
+    if not seeds:
+        return "not run yet"
+    done = f"{len(seeds)} training seed(s): {', '.join(map(str, seeds))}"
+    return f"{done}; not run yet: {', '.join(map(str, missing))}" if missing else done
 
 
-def table_markdown(results: list[RunResult], table: PaperTable) -> str:
+def not_run(results: list[RunResult], planned: dict[str, tuple[int, ...]]) -> list[tuple[str, list[int]]]:
+    """The suite's entries with training seeds that no result in the report comes from."""
+    have = {(r.entry, r.seed) for r in results}
+    return [(entry, missing) for entry, seeds in planned.items() if (missing := [s for s in seeds if (entry, s) not in have])]
+
+
+_NOT_RUN_INTRO = ("Runs of the suite file (its latest copy, `runs/suite.yaml`) that this report holds no result of yet "
+                  "(`gpl-dist suite run SUITE --out OUT --only ENTRY --seeds S`):")
+
+
+def table_markdown(results: list[RunResult], table: PaperTable,
+                   planned: dict[str, tuple[int, ...]] | None = None) -> str:
     """One table: a row per paper row, each cell 'ours (paper)'."""
     head = "| method | " + " | ".join(f"c{k}" for k in table.columns) + " | runs |"
     lines = [f"**{table.caption}.** Each cell: ours, mean ± sd over training seeds (paper).", "", head,
@@ -261,7 +290,7 @@ def table_markdown(results: list[RunResult], table: PaperTable) -> str:
                 continue
             ours, paper = c
             cells.append(f"{ours.text() if ours else '—'} ({'-' if paper is None else paper})")
-        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row)} |")
+        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row, planned or {})} |")
     return "\n".join(lines)
 
 
@@ -362,9 +391,15 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     archive.mkdir(parents=True, exist_ok=True)
     archive_runs(suite_out, archive)
     results = collect_results(archive)
+    planned = planned_seeds(archive / "suite.yaml")  # the suite's latest copy: archived from suite_out just above
     parts, html_parts = [_INTRO.format(suite_out=suite_out)], [f"<p>{html.escape(_INTRO_HTML.format(suite_out=suite_out))}</p>"]
+    if missing := not_run(results, planned):
+        items = [f"`{entry}`: training seed(s) {', '.join(map(str, seeds))}" for entry, seeds in missing]
+        parts += ["## Not run yet", _NOT_RUN_INTRO + "\n\n" + "\n".join(f"- {item}" for item in items)]
+        html_parts += ["<h2>Not run yet</h2>", f"<p>{html.escape(_NOT_RUN_INTRO.replace('`', ''))}</p><ul>"
+                       + "".join(f"<li>{html.escape(item.replace('`', ''))}</li>" for item in items) + "</ul>"]
     for table in PAPER_TABLES:
-        md = table_markdown(results, table)
+        md = table_markdown(results, table, planned)
         png = out / f"{table.key}.png"
         has_plot = plot_table(results, table, png)
         parts += [f"## {table.caption.split(':')[0].split(',')[0]} ({table.key})", md]
@@ -375,7 +410,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
     from gpl_dist.suite_rl import plan_of_copy, sample_complexity_section
 
-    plan = plan_of_copy(archive / "suite.yaml")  # the suite's latest copy: archived from suite_out just above
+    plan = plan_of_copy(archive / "suite.yaml")
     rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive, plan=plan)
     if rl_md:
         parts += ["## Sample complexity: RL per task against GPL and GPR (the paper's figure)", rl_md]

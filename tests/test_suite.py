@@ -131,10 +131,12 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     evaluations = {"test": {"split": "test", "seeds": [0, 1], "num_corrections": 5, "greedy_actions": False, "max_tasks": 3},
                    "test-c10": {"split": "test", "seeds": [0], "num_corrections": 10, "greedy_actions": False, "max_tasks": 2}}
     path = write_suite(tmp_path / "suite.yaml", {
-        "multiroom-gpl": entry(seeds=(0, 1), evaluations=("test", "test-c10"), **{"training.num_rounds": 1}),
-        "multiroom-instruction": entry(**{"model.variant": "instruction_only", "training.num_rounds": 1})}, evaluations)
+        "multiroom-gpl": entry(seeds=(0, 1, 2), evaluations=("test", "test-c10"), **{"training.num_rounds": 1}),
+        "multiroom-instruction": entry(**{"model.variant": "instruction_only", "training.num_rounds": 1}),
+        "multiroom-no-trajectory": entry(**{"model.variant": "no_trajectory"})}, evaluations)
     out = tmp_path / "out"
-    run_suite(load_suite(path), out, serial=True, progress=False)
+    run_suite(load_suite(path), out, only=("multiroom-gpl", "multiroom-instruction"), seeds=(0, 1), serial=True,
+              progress=False)
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
     md = (tmp_path / "report" / "report.md").read_text()
     for table in PAPER_TABLES:
@@ -144,8 +146,13 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
     gpl_row = next(line for line in md.splitlines() if line.startswith("| GPL |"))
     assert f"{statistics.fmean(per_seed):.3f} ± {statistics.stdev(per_seed):.3f} (0.46)" in gpl_row
-    assert "2 training seed(s): 0, 1" in gpl_row
-    assert "not in the paper either" in md and "not run yet" in md
+    assert gpl_row.endswith("| 2 training seed(s): 0, 1; not run yet: 2 |")  # the suite file's seed 2 is missing
+    assert "not in the paper either" in md and "| No trajectory |" in md
+    no_trajectory_row = next(line for line in md.splitlines() if line.startswith("| No trajectory |"))
+    assert no_trajectory_row.endswith("| not run yet |")
+    not_run = md.split("## Not run yet", 1)[1].split("\n## ", 1)[0]  # every run of the suite file not reported, only those
+    assert [line for line in not_run.splitlines() if line.startswith("- ")] == [
+        "- `multiroom-gpl`: training seed(s) 2", "- `multiroom-no-trajectory`: training seed(s) 0"]
     effort = json.loads((out / "multiroom-gpl" / "seed0" / "eval.json").read_text())["correction_effort"]
     effort_row = next(line for line in md.splitlines() if line.startswith("| multiroom-gpl |"))
     auc = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["correction_effort"]["completion_auc"]
@@ -156,6 +163,7 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
                                                           ("multiroom-instruction", "test")}
     html = (tmp_path / "report" / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4 and "<table>" in html
+    assert "<li>multiroom-no-trajectory: training seed(s) 0</li>" in html
     assert (tmp_path / "report" / "table2.png").stat().st_size > 1000
 
 
