@@ -276,9 +276,9 @@ _NOT_RUN_INTRO = ("Runs of the suite file (its latest copy, `runs/suite.yaml`) t
                   "(`gpl-dist suite run SUITE --out OUT --only ENTRY --seeds S`):")
 
 
-def table_markdown(results: list[RunResult], table: PaperTable,
-                   planned: dict[str, tuple[int, ...]] | None = None) -> str:
-    """One table: a row per paper row, each cell 'ours (paper)'."""
+def table_markdown(results: list[RunResult], table: PaperTable, planned: dict[str, tuple[int, ...]]) -> str:
+    """One table: a row per paper row, each cell 'ours (paper)'; ``planned``: each entry's training
+    seeds in the suite file (``planned_seeds``), for the seeds not run yet."""
     head = "| method | " + " | ".join(f"c{k}" for k in table.columns) + " | runs |"
     lines = [f"**{table.caption}.** Each cell: ours, mean ± sd over training seeds (paper).", "", head,
              "|" + "---|" * (len(table.columns) + 2)]
@@ -290,7 +290,7 @@ def table_markdown(results: list[RunResult], table: PaperTable,
                 continue
             ours, paper = c
             cells.append(f"{ours.text() if ours else '—'} ({'-' if paper is None else paper})")
-        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row, planned or {})} |")
+        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row, planned)} |")
     return "\n".join(lines)
 
 
