@@ -61,6 +61,9 @@ class CollectionConfig:
     """Act with the policy's most likely action instead of sampling during collection."""
     max_unit_retries: int = 3
     """How often a failed work unit is handed out again before the round fails."""
+    unit_timeout_s: float = 1800.0
+    """Seconds a work unit may be out on a Ray actor without a result before the actor is replaced
+    and the unit counts as a failed try (a hung actor or a lost call; units take seconds to minutes)."""
 
 
 @dataclass(frozen=True)
@@ -319,6 +322,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
          f"collection.num_corrections must be in 0..{MAX_CORRECTIONS}, got {cfg.collection.num_corrections}"),
         (cfg.collection.tasks_per_unit >= 1, "collection.tasks_per_unit must be at least 1"),
         (cfg.collection.max_unit_retries >= 0, "collection.max_unit_retries must be >= 0"),
+        (cfg.collection.unit_timeout_s > 0, "collection.unit_timeout_s must be positive"),
         (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
         (cfg.model.embedding_dim >= 1, "model.embedding_dim must be at least 1"),
         (cfg.model.correction_width >= 0, "model.correction_width must be >= 0 (0: the domain's appendix value)"),

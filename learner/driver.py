@@ -354,7 +354,7 @@ def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id
         return SerialCollector(cfg.env.domain, settings, root, run_id)
     from workers.ray_pool import RayCollector  # Ray is imported only where a run uses it
     return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
-                        cfg.collection.max_unit_retries)
+                        cfg.collection.max_unit_retries, cfg.collection.unit_timeout_s)
 
 
 class _RoundLoop:

@@ -102,7 +102,8 @@ def main(mode: str, work: Path) -> None:
         cfg = config_from_dict(raw)
         run_dir = work / "run"
         collector = RayCollector(get_domain(cfg.env.domain).name, RolloutSettings.of_run(cfg), buffer_root(cfg, run_dir),
-                                 run_dir.name, cfg.collection.num_workers, cluster.address, cfg.collection.max_unit_retries)
+                                 run_dir.name, cfg.collection.num_workers, cluster.address, cfg.collection.max_unit_retries,
+                                 cfg.collection.unit_timeout_s)
         import ray
 
         out["driver_node"] = ray.get_runtime_context().get_node_id()

@@ -104,6 +104,33 @@ def test_actor_killed_mid_round_is_restarted_and_its_unit_retried(tmp_path, tiny
 
 
 @pytest.mark.cluster
+def test_actor_that_hangs_mid_unit_is_replaced_after_the_unit_timeout(tmp_path, tiny_config):
+    """An actor alive but silent (paused in unit 1 of round 0, as a hung env or a lost call would
+    leave it): after ``collection.unit_timeout_s`` the unit is a failed try, the actor is killed and
+    replaced, and the run finishes instead of waiting without end."""
+    run_dir, signals = tmp_path / "run", tmp_path / "signals"
+    signals.mkdir()
+    timeout_s = 60  # above an actor's start on 2 loaded cores (its first unit's clock includes it)
+    driver = _Driver(["--config", str(tiny_config), "--run-dir", str(run_dir), "--set",
+                      f"collection.unit_timeout_s={timeout_s}"], tmp_path / "driver.log",
+                     **{FAULT_ENV: _pause_unit(0, 1, signals)})
+    try:
+        wait_for(signals / "round-0-unit-1.pid", driver.proc)
+        paused_pid = int((signals / "round-0-unit-1.pid").read_text())
+        paused_at = time.monotonic()
+        assert driver.proc.wait(240) == 0
+        assert time.monotonic() - paused_at > timeout_s - 10, "the unit was handed out again before its timeout"
+        assert not Path(f"/proc/{paused_pid}").exists() or b"RolloutActor" not in \
+            Path(f"/proc/{paused_pid}/cmdline").read_bytes(), "the hung actor was left running"
+    finally:
+        assert driver.cleanup() == []
+    log = (tmp_path / "driver.log").read_text()
+    assert "unit (0, 1) got no result from actor-" in log and f"unit_timeout_s={timeout_s}s" in log, log[-3000:]
+    assert "returned nothing in time" in log and "round 1:" in log, log[-3000:]
+    assert_buffer_exactly_once(run_dir / "buffer", [0, 1])
+
+
+@pytest.mark.cluster
 def test_driver_killed_mid_round_resumes_from_last_committed_round(tmp_path, tiny_config):
     from learner.checkpoint import load_checkpoint
     from storage import clean_leftovers, committed_rounds, load_manifest

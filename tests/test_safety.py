@@ -199,6 +199,7 @@ _PROBES = {
     "model.correction_width=-4": "model.correction_width must be >= 0",
     "training.num_threads=-1": "training.num_threads must be >= 0",
     "collection.max_unit_retries=-1": "collection.max_unit_retries must be >= 0",
+    "collection.unit_timeout_s=0": "collection.unit_timeout_s must be positive",
     "eval.max_tasks=-2": "eval.max_tasks must be >= 0",
 }
 

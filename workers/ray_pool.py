@@ -13,6 +13,9 @@ A dead actor is not handed another unit until a cheap probe call (``node_id``) h
 actor whose node is gone may stay pending for a long time (no free CPU anywhere), and a unit queued
 behind it would stall the round, so the remaining actors take over its work meanwhile. A probe that
 fails (the actor died for good, e.g. its constructor raised) replaces the actor with a fresh one.
+A unit out for longer than ``unit_timeout_s`` without a result (its actor hung, or the call or its
+reply was lost while the actor looks alive) counts as a failed try: its actor is replaced and the
+unit handed out again, so a stuck round fails in one line instead of waiting without end.
 A round fails (``RoundFailed``) when a unit failed more than ``max_unit_retries`` times, or when no
 actor has been usable for ``ACTOR_WAIT_S`` seconds.
 """
@@ -143,9 +146,11 @@ class RayCollector:
     POLL_S = 5.0
 
     def __init__(self, domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
-                 num_workers: int, address: str | None = None, max_unit_retries: int = 3):
+                 num_workers: int, address: str | None = None, max_unit_retries: int = 3,
+                 unit_timeout_s: float = 1800.0):
         self._owns_ray = init_ray(address, num_workers)
         self.max_unit_retries = max_unit_retries
+        self.unit_timeout_s = unit_timeout_s
         self._actor_args = (domain_name, settings, buffer_root, run_id)
         self.actors = [self._new_actor(i) for i in range(num_workers)]
         self.unit_tries: dict[tuple[int, int], int] = {}
@@ -162,11 +167,11 @@ class RayCollector:
         """Hand actor ``i`` no unit until a cheap call shows it is alive (restarted) again."""
         self._probes[self.actors[i].node_id.remote()] = i
 
-    def _replace(self, i: int, err: BaseException) -> None:
+    def _replace(self, i: int, err: BaseException, why: str = "is gone for good") -> None:
         self.replaced_actors += 1
         if self.replaced_actors > self.max_unit_retries + len(self.actors):
             raise RoundFailed(f"replaced {self.replaced_actors} rollout actors; last error: {err}") from err
-        log.warning("rollout actor-%d is gone for good (%s); starting a replacement", i, type(err).__name__)
+        log.warning("rollout actor-%d %s (%s); starting a replacement", i, why, type(err).__name__)
         ray.kill(self.actors[i], no_restart=True)
         self.actors[i] = self._new_actor(i)
         self._probe(i)
@@ -183,8 +188,9 @@ class RayCollector:
         while queue or inflight:
             while queue and idle:
                 i, unit = idle.pop(), queue.popleft()
-                inflight[self.actors[i].run_unit.remote(unit, [weights_ref])] = (i, unit)
+                inflight[self.actors[i].run_unit.remote(unit, [weights_ref])] = (i, unit, time.monotonic())
             done, _ = ray.wait(list(inflight) + list(self._probes), num_returns=1, timeout=self.POLL_S)
+            self._hand_out_overdue_again(inflight, queue)
             if not done:
                 if not inflight and time.monotonic() - last_progress > self.ACTOR_WAIT_S:
                     raise RoundFailed(f"no rollout actor was usable for {self.ACTOR_WAIT_S:.0f}s with "
@@ -202,14 +208,14 @@ class RayCollector:
                     idle.append(i)
                     last_progress = time.monotonic()
                     continue
-                i, unit = inflight.pop(ref)
+                if ref not in inflight:
+                    continue  # overdue: handed out again above
+                i, unit, _ = inflight.pop(ref)
                 key = (unit.round_index, unit.unit_index)
                 try:
                     result, node = ray.get(ref)
                 except (RayActorError, RayTaskError) as err:
-                    self.unit_tries[key] = self.unit_tries.get(key, 0) + 1
-                    if self.unit_tries[key] > self.max_unit_retries:
-                        raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {err}") from err
+                    self._count_failed_try(key, err)
                     log.warning("unit %s failed on actor-%d (%s); handing it out again", key, i, type(err).__name__)
                     queue.appendleft(unit)
                     if isinstance(err, RayActorError):
@@ -224,6 +230,29 @@ class RayCollector:
                 if on_result is not None:
                     on_result(result)
         return [results[(u.round_index, u.unit_index)] for u in units]
+
+    def _count_failed_try(self, key: tuple[int, int], err: BaseException) -> None:
+        """Count a failed try of unit ``key``; the round fails once it failed too often."""
+        self.unit_tries[key] = self.unit_tries.get(key, 0) + 1
+        if self.unit_tries[key] > self.max_unit_retries:
+            raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {err}") from err
+
+    def _hand_out_overdue_again(self, inflight: dict, queue: deque) -> None:
+        """Units out longer than ``unit_timeout_s``: each is a failed try; its actor is replaced (a
+        hung actor would hold its CPU for good) and the unit goes to the front of the queue. A late
+        reply of the old call is ignored: its ref is no longer in flight."""
+        now = time.monotonic()
+        for ref, (i, unit, sent_s) in list(inflight.items()):
+            if now - sent_s <= self.unit_timeout_s:
+                continue
+            del inflight[ref]
+            key = (unit.round_index, unit.unit_index)
+            err = TimeoutError(f"unit {key} got no result from actor-{i} within collection.unit_timeout_s="
+                               f"{self.unit_timeout_s:g}s (a hung actor or a lost call; raise it if units are that slow)")
+            self._count_failed_try(key, err)
+            log.warning("%s; handing it out again", err)
+            queue.appendleft(unit)
+            self._replace(i, err, why="returned nothing in time")
 
     def close(self) -> None:
         for actor in self.actors:
