@@ -154,7 +154,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
                     fingerprints[job.pretrained] = "not trained"
             return fingerprints[job.pretrained]
         counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain), start(j)) for j in jobs), len(jobs)),
-                  ("GPL/GPR attempt sets", sum(attempts_current(args.out, j) for j in points), len(points)))
+                  ("GPL/GPR attempt sets", sum(attempts_current(args.out, j, rl_plan) for j in points), len(points)))
         for what, done, total in counts:  # made with other PPO settings or from another policy: not done
             print(f"rl: {done} of {total} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
     return 0
@@ -162,7 +162,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
 
 def cmd_suite_rl(args: argparse.Namespace) -> int:
     """``gpl-dist suite rl``: RL per test task against GPL and GPR (the suite file's ``rl`` section)."""
-    from gpl_dist.suite import load_suite
+    from gpl_dist.suite import keep_copy, load_suite
     from gpl_dist.suite_rl import run_rl_plan
 
     if args.serial and args.address:
@@ -170,6 +170,7 @@ def cmd_suite_rl(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     if suite.rl is None:
         raise UsageError(f"{args.suite} has no 'rl' section")
+    keep_copy(suite, args.out)  # the report reads the RL results of this plan
     ran = run_rl_plan(suite.rl, args.out, address=args.address, serial=args.serial, domains=_names(args.domains))
     print(f"suite {args.suite}: {ran} RL job(s) ran; every selected one is done; report with: gpl-dist suite report {args.out}")
     return 0

@@ -225,6 +225,13 @@ def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple
 
 
 @functools.cache
+def keep_copy(suite: Suite, out: str | Path) -> None:
+    """Copy the suite file to ``OUT/suite.yaml``: the plan the report reads (its rows' seeds not
+    run yet, the RL results that are jobs of its ``rl`` section), archived with the report."""
+    Path(out).mkdir(parents=True, exist_ok=True)
+    (Path(out) / "suite.yaml").write_text(suite.path.read_text())
+
+
 def code_commit() -> str:
     """The git commit of the code this process runs, read once, when first asked (``run_suite``
     asks before any run: a commit made while a suite runs does not relabel its runs), with
@@ -351,8 +358,7 @@ def run_suite(suite: Suite, out: str | Path, *, only: tuple[str, ...] = (), seed
     if not runs:
         raise ConfigError(f"{suite.path}: --only/--seeds select no run (entries: {', '.join(e.name for e in suite.entries)})")
     before = [(r, run_state(r, suite)) for r in runs]  # refuses a changed entry before anything runs
-    Path(out).mkdir(parents=True, exist_ok=True)
-    (Path(out) / "suite.yaml").write_text(suite.path.read_text())
+    keep_copy(suite, out)
     todo = [r for r, state in before if state != "done"]
     for run, state in before:
         if state == "done":

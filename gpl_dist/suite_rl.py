@@ -158,13 +158,17 @@ def result_path(out: str | Path, key: str) -> Path:
 
 
 def is_current(out: str | Path, job, settings, policy: str | None = None) -> bool:
-    """Whether ``job``'s result is written and was made with ``settings`` (``learner.rl.PPOSettings``)
-    and, for a job that starts from a trained policy, from the one of fingerprint ``policy``."""
+    """Whether ``job``'s result is written for this very job (its budget is not in the file's
+    name), made with ``settings`` (``learner.rl.PPOSettings``) and, for a job that starts from a
+    trained policy, from the one of fingerprint ``policy``."""
+    from learner.rl import RLJob
+
     path = result_path(out, job.key)
     if not path.is_file():
         return False
     data = json.loads(path.read_text())
-    return data.get("settings") == dataclasses.asdict(settings) and data.get("policy") == policy
+    return (RLJob(**data["job"]) == job and data.get("settings") == dataclasses.asdict(settings)
+            and data.get("policy") == policy)
 
 
 def policy_fingerprint(weights: Mapping[str, Any]) -> str:
@@ -259,14 +263,17 @@ def run_attempts_job(job: AttemptsJob, plan: RLPlan, out: str | Path) -> dict:
             "tasks": list(tasks), "completion": per_task, "policy": policy_fingerprint(state_dict_to_numpy(model))}
 
 
-def attempts_current(out: str | Path, job: AttemptsJob) -> bool:
-    """Whether ``job``'s result is written from the entry's current trained policy (an entry not
-    trained yet keeps what is written)."""
+def attempts_current(out: str | Path, job: AttemptsJob, plan: RLPlan) -> bool:
+    """Whether ``job``'s result is written for the plan's tasks of its domain, from the entry's
+    current trained policy (an entry not trained yet keeps what is written)."""
     path = result_path(out, job.key)
     if not path.is_file():
         return False
+    data = json.loads(path.read_text())
+    if data.get("tasks") != list(plan.tasks[job.domain]):
+        return False
     try:
-        return json.loads(path.read_text()).get("policy") == trained_fingerprint(out, job.entry)
+        return data.get("policy") == trained_fingerprint(out, job.entry)
     except NotTrainedYet:
         return True
 
@@ -284,7 +291,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
 
     commit = code_commit()  # read once: a commit made while the jobs run does not relabel them
     keep = (lambda d: d in domains) if domains else (lambda d: True)  # noqa: E731
-    todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not attempts_current(out, j)]
+    todo_attempts = [j for j in attempts_jobs(plan) if keep(j.domain) and not attempts_current(out, j, plan)]
     ran = 0
     for job in todo_attempts:
         try:
@@ -398,23 +405,25 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from:
              "(k - 1 corrections) at k trajectories. Median over tasks, interquartile range in brackets. PPO stops "
              "updating once every copy of the task solved it in one round of episodes (where the authors' expert "
              "training stopped; the rest of the budget samples that policy); the last column counts those tasks and "
-             "the median trajectories at which it happened. Made by "
+             "the median trajectories at which it happened. 'Trajectories to reach GPL' is the first count at which "
+             "a method's median reaches GPL's median after 5 corrections on the same tasks. Made by "
              f"`gpl-dist suite rl configs/suites/paper.yaml --out {suite_out}`.", "",
              "| domain | method | tasks x seeds | after 1 | 3 | 6 | 10 | 100 | 1000 | last "
              "| trajectories to reach GPL after 5 corrections | solved (updates stopped), median trajectories |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     fig_rows: dict[str, dict[str, tuple]] = {}
     for domain in domains:
-        gpl_target = None
+        gpl_by_task: dict[int, float] = {}  # GPL's completion after 5 corrections (mean over seeds), per task
         rows: dict[str, tuple] = {}
         for entry in sorted({a["entry"] for a in attempts if a["domain"] == domain}):
             per = np.mean([np.array(a["completion"]) for a in attempts if a["entry"] == entry], axis=0)  # tasks x attempts
             med, q25, q75 = np.median(per, 0), np.percentile(per, 25, 0), np.percentile(per, 75, 0)
             ks = tuple(range(1, per.shape[1] + 1))
-            rows[entry] = (ks, med, q25, q75, "points")
             variant = next(a["variant"] for a in attempts if a["entry"] == entry)
+            rows[entry] = (ks, med, q25, q75, variant)
             if variant == "gpl":
-                gpl_target = float(med[-1])
+                tasks = next(a["tasks"] for a in attempts if a["entry"] == entry)
+                gpl_by_task = dict(zip(tasks, per[:, -1].tolist()))
             cells = [_q(med, q25, q75, k - 1) if k <= len(ks) else "" for k in (1, 3, 6)]
             seeds = len({a["seed"] for a in attempts if a["entry"] == entry})
             lines.append(f"| {domain} | {entry} ({variant}) | {per.shape[0]} x {seeds} | {' | '.join(cells)} | | | | | | |")
@@ -423,10 +432,10 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from:
             budget = min(len(c.completion) for c in mine)
             points = tuple(sorted(set(log_points(budget)) | {p for p in _COLUMNS if p <= budget}))
             s = summarize(mine, points)
-            rows[method] = (points, np.array(s.median), np.array(s.q25), np.array(s.q75), "curve")
+            rows[method] = (points, np.array(s.median), np.array(s.q25), np.array(s.q75), method)
             at = {p: i for i, p in enumerate(points)}
             cells = [_q(s.median, s.q25, s.q75, at[p]) if p in at else "" for p in _COLUMNS]
-            reach = "" if gpl_target is None else _first_reach(points, s.median, gpl_target, budget)
+            reach = _first_reach(mine, gpl_by_task)
             stops = [c.solved_at for c in mine if c.solved_at is not None]
             solved = f"{len(stops)} of {len(mine)}" + (f", {int(np.median(stops))}" if stops else "")
             lines.append(f"| {domain} | {method} | {len(mine)} | {' | '.join(cells)} | "
@@ -438,6 +447,8 @@ def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from:
               "their CPU time where other runs shared the cores). The paper: "
               "RL needs more than 1000 trajectories per task to reach GPL's completion after 5 corrections.", "",
               f"Code commits of these results (results each): {made_by}."]
+    if plan is not None:
+        lines += _not_run_yet(plan, curves, attempts)
     if left_out:
         lines += ["", f"Left out: {len(left_out)} result(s) under `rl/` that are not jobs of the suite's `rl` section "
                   f"as it stands (another task list, budget or PPO settings), e.g. `{left_out[0]}`."]
@@ -454,11 +465,38 @@ def _q(med, q25, q75, i: int) -> str:
     return f"{med[i]:.2f} [{q25[i]:.2f}, {q75[i]:.2f}]"
 
 
-def _first_reach(points, median, target: float, budget: int) -> str:
-    for p, m in zip(points, median):
+def _first_reach(curves: list, gpl_by_task: Mapping[int, float]) -> str:
+    """The first trajectory count at which the median over ``curves``' tasks reaches GPL's median
+    after 5 corrections on the same tasks (empty without GPL points on each of them)."""
+    import numpy as np
+
+    from learner.rl import summarize
+
+    tasks = [c.job.task_id for c in curves]
+    if not tasks or any(t not in gpl_by_task for t in tasks):
+        return ""
+    target = float(np.median([gpl_by_task[t] for t in tasks]))
+    budget = min(len(c.completion) for c in curves)
+    every = tuple(range(1, budget + 1))
+    for p, m in zip(every, summarize(curves, every).median):
         if m >= target:
             return f"{p} (GPL: {target:.2f})"
     return f"not within {budget} (GPL: {target:.2f})"
+
+
+def _not_run_yet(plan: RLPlan, curves: list, attempts: list[dict]) -> list[str]:
+    """A line naming how many of the plan's jobs have no result yet, per domain and method."""
+    done = {c.job.key for c in curves} | {AttemptsJob(a["entry"], a["domain"], a["seed"]).key for a in attempts}
+    planned: dict[tuple[str, str], list[bool]] = {}
+    for job in [*attempts_jobs(plan), *rl_jobs(plan)]:
+        what = job.entry if isinstance(job, AttemptsJob) else job.method
+        planned.setdefault((job.domain, what), []).append(job.key in done)
+    missing = [f"{domain} {what}: {len(flags) - sum(flags)} of {len(flags)}"
+               for (domain, what), flags in sorted(planned.items()) if not all(flags)]
+    if not missing:
+        return []
+    return ["", "Not run yet (jobs of the suite's `rl` section without a result; `gpl-dist suite rl` runs them): "
+            + "; ".join(missing) + "."]
 
 
 def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
@@ -468,14 +506,18 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FuncFormatter
 
+    from learner.rl import RL_METHODS
+
     fig, axes = plt.subplots(1, len(fig_rows), figsize=(5.5 * len(fig_rows), 3.8), dpi=110, squeeze=False)
+    kinds = sorted({kind for rows in fig_rows.values() for *_, kind in rows.values()})
+    colour = {kind: f"C{i % 10}" for i, kind in enumerate(kinds)}  # a method has one colour in every panel
     for ax, (domain, rows) in zip(axes[0], fig_rows.items()):
         for name, (xs, med, q25, q75, kind) in rows.items():
-            if kind == "curve":
-                (line,) = ax.plot(xs, med, label=name)
-                ax.fill_between(xs, q25, q75, alpha=0.2, color=line.get_color())
-            else:
-                ax.errorbar(xs, med, yerr=[med - q25, q75 - med], marker="o", capsize=3, label=name)
+            if kind in RL_METHODS:
+                ax.plot(xs, med, label=name, color=colour[kind])
+                ax.fill_between(xs, q25, q75, alpha=0.2, color=colour[kind])
+            else:  # an entry's points at k attempts, coloured by its variant (gpl, gpr)
+                ax.errorbar(xs, med, yerr=[med - q25, q75 - med], marker="o", capsize=3, label=name, color=colour[kind])
         ax.set_xscale("log")
         ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:g}"))  # 1, 10, 100, not 10^0
         ax.xaxis.set_minor_formatter(FuncFormatter(lambda x, _: ""))

@@ -247,3 +247,47 @@ def test_the_report_reads_only_the_results_of_the_suites_rl_plan(tmp_path):
     (tmp_path / "suite.yaml").write_text("entries: {a: {base: ../nowhere.yaml}}\n"
                                          "rl: {tasks: {multiroom: [1, 2]}, seeds: [0], trajectories: 50}\n")
     assert plan_of_copy(tmp_path / "suite.yaml") == plan and plan_of_copy(tmp_path / "none.yaml") is None
+
+
+def test_a_changed_budget_or_task_list_makes_a_written_result_stale(tmp_path):
+    """The budget is not in a result's file name and the task list not in an attempts set's: both
+    are compared with the plan, so changing either runs the job again instead of counting it done."""
+    import dataclasses
+
+    from gpl_dist.suite_rl import AttemptsJob, attempts_current, is_current, parse_rl_plan, write_result
+    from learner.rl import RLCurve
+
+    plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ("gpl",))
+    settings = plan.settings("multiroom")
+    curve = RLCurve(RLJob("rl-scratch", "multiroom", 1, 0, 50), (1.0,) * 50, (True,) * 50, 1, 1.0)
+    write_result(tmp_path, curve.job.key, {**curve.to_json(), "settings": dataclasses.asdict(settings)})
+    assert is_current(tmp_path, curve.job, settings)
+    assert not is_current(tmp_path, dataclasses.replace(curve.job, trajectories=80), settings)
+    points = AttemptsJob("gpl", "multiroom", 0)
+    write_result(tmp_path, points.key, {"entry": "gpl", "domain": "multiroom", "seed": 0, "tasks": [1, 2]})
+    assert attempts_current(tmp_path, points, plan)  # "gpl" is not trained here: what is written stays
+    wider = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2, 3]}, "seeds": [0], "trajectories": 50}, ("gpl",))
+    assert not attempts_current(tmp_path, points, wider)
+
+
+def test_rl_reaches_gpl_against_gpls_median_on_the_same_tasks_and_missing_jobs_are_named(tmp_path):
+    """With RL on 2 of 3 tasks, the bar is GPL's median on those 2 (0.30), not on all 3 (0.40)."""
+    import dataclasses
+
+    from gpl_dist.suite_rl import parse_rl_plan, sample_complexity_section, write_result
+    from learner.rl import RLCurve
+
+    plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2, 3]}, "seeds": [0], "trajectories": 40,
+                               "attempts_from": {"multiroom": ["gpl"]}}, ("gpl",))
+    settings = dataclasses.asdict(plan.settings("multiroom"))
+    last = {1: 0.2, 2: 0.4, 3: 1.0}  # GPL after 5 corrections, per task
+    write_result(tmp_path, "attempts/gpl-seed0", {
+        "entry": "gpl", "domain": "multiroom", "seed": 0, "variant": "gpl", "tasks": [1, 2, 3],
+        "completion": [[0.0] * 5 + [last[t]] for t in (1, 2, 3)]})
+    for task in (1, 2):
+        curve = RLCurve(RLJob("rl-scratch", "multiroom", task, 0, 40), (0.35,) * 40, (False,) * 40, 1, 1.0)
+        write_result(tmp_path, curve.job.key, {**curve.to_json(), "settings": settings})
+    md, _ = sample_complexity_section(tmp_path, tmp_path / "report", plan=plan)
+    row = next(line for line in md.splitlines() if line.startswith("| multiroom | rl-scratch |")).split("|")
+    assert row[-3].strip() == "1 (GPL: 0.30)", row
+    assert "Not run yet" in md and "multiroom rl-scratch: 1 of 3" in md and "gpl: 0 of" not in md
