@@ -9,8 +9,9 @@ Two steps (``gpl_dist.experts.relocation_training`` has what each does), as comm
 
 Deterministic for given arguments and torch thread count. The packaged weights are the second
 command's output as of commit ``a606b4c``, when step 2 was a hand-written PPO; step 2 is now
-stable-baselines3's PPO with the same settings, and the asset is kept until a run of it is shown
-to be at least as good (0.962 completion from the start state). ``docs/history.md`` has the figures.
+stable-baselines3's PPO with that loop's numbers but SB3's details (``docs/design.md`` lists where
+they differ), and the asset is kept until a run of it is shown to be at least as good (0.962
+completion from the start state). ``docs/history.md`` has the figures.
 """
 
 from __future__ import annotations
