@@ -103,6 +103,37 @@ def test_finetuning_starts_from_exactly_the_pretrained_policy(instruction_run):
         make_ppo(job, SMALL, None)
 
 
+def test_relocation_finetuning_starts_from_exactly_the_pretrained_policy():
+    """Relocation's path (a state vector, an input and a policy BatchNorm with their statistics):
+    weights of an instruction-only network built as ``configs/relocation.yaml`` says, with
+    non-trivial BatchNorm statistics, give SB3's policy the network's own action distribution."""
+    import dataclasses
+
+    from gpl_dist.config import load_config
+    from gpl_dist.domains import get_domain
+    from learner.rl import task_network
+
+    model_cfg = dataclasses.replace(load_config("configs/relocation.yaml").model, variant="instruction_only")
+    network = task_network(get_domain("relocation"), None, seed=5, model=model_cfg)
+    generator = torch.Generator().manual_seed(5)
+    for norm in (m for m in network.modules() if isinstance(m, torch.nn.BatchNorm1d)):
+        norm.running_mean = torch.randn(norm.num_features, generator=generator)
+        norm.running_var = torch.rand(norm.num_features, generator=generator) + 0.5
+    network.eval()
+    job = RLJob("rl-finetune", "relocation", 11, 0, 4, pretrained="instr")
+    model, env = make_ppo(job, SMALL, state_dict_to_numpy(network), model_cfg)
+    obs = model.env.reset()[:1]
+    obs_t, _ = model.policy.obs_to_tensor(obs)
+    model.policy.set_training_mode(False)
+    with torch.no_grad():
+        sb3 = model.policy.get_distribution(obs_t).distribution.logits
+        ids = torch.from_numpy(network.vocabulary.encode(env.unwrapped.instruction)).reshape(1, -1)
+        ours = torch.log_softmax(network.action_logits(torch.from_numpy(obs), network.encode_conditioning(
+            _instruction_only(ids))), 1)
+    assert torch.allclose(sb3, ours, atol=1e-5)
+    assert not torch.allclose(ours, torch.full_like(ours, -np.log(ours.shape[1])), atol=1e-3)  # not uniform
+
+
 def _suite(tmp_path, **rl_overrides):
     spec = {"instr": entry(**{"training.num_rounds": 1, "model.variant": "instruction_only"}),
             "gpl": entry(**{"training.num_rounds": 1})}
