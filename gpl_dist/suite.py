@@ -224,7 +224,6 @@ def plan(suite: Suite, out: str | Path, only: tuple[str, ...] = (), seeds: tuple
     return runs
 
 
-@functools.cache
 def keep_copy(suite: Suite, out: str | Path) -> None:
     """Copy the suite file to ``OUT/suite.yaml``: the plan the report reads (its rows' seeds not
     run yet, the RL results that are jobs of its ``rl`` section), archived with the report."""
@@ -232,6 +231,7 @@ def keep_copy(suite: Suite, out: str | Path) -> None:
     (Path(out) / "suite.yaml").write_text(suite.path.read_text())
 
 
+@functools.cache
 def code_commit() -> str:
     """The git commit of the code this process runs, read once, when first asked (``run_suite``
     asks before any run: a commit made while a suite runs does not relabel its runs), with

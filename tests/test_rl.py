@@ -178,8 +178,10 @@ def test_the_rl_section_runs_every_job_once_and_reports_the_figure(tmp_path, cap
     assert main(["suite", "status", str(path), "--out", str(out)]) == 0
     status = capsys.readouterr().out  # neither the missing nor the stale ones
     assert "rl: 1 of 4 RL jobs done" in status and "rl: 0 of 1 GPL/GPR attempt sets done" in status
+    (out / "suite.yaml").unlink()  # as if only 'suite rl' had run: it keeps the copy the report reads
     assert main(["suite", "rl", str(path), "--out", str(out), "--serial"]) == 0
     assert "4 RL job(s) ran" in capsys.readouterr().out
+    assert (out / "suite.yaml").read_text() == path.read_text()
     assert json.loads(stale.read_text())["settings"]["n_envs"] == 2
     assert json.loads(started.read_text())["policy"] == policy and json.loads(points.read_text())["policy"] != "0" * 16
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
