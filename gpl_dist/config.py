@@ -62,8 +62,7 @@ class CollectionConfig:
     max_unit_retries: int = 3
     """How often a failed work unit is handed out again before the round fails."""
     unit_timeout_s: float = 1800.0
-    """Seconds a work unit may be out on a Ray actor without a result before the actor is replaced
-    and the unit counts as a failed try (a hung actor or a lost call; units take seconds to minutes)."""
+    """Seconds a unit may be out on a Ray actor with no result before it is a failed try and the actor replaced."""
 
 
 @dataclass(frozen=True)
