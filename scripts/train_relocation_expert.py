@@ -7,6 +7,9 @@ Two steps (``gpl_dist.experts.relocation_training`` has what each does), as comm
     python scripts/train_relocation_expert.py ppo --init runs/priv14.pt --iterations 600 \\
         --out gpl_dist/assets/relocation_learned_expert.npz
 
+Step 2 saves its state after every iteration (``--checkpoint``, default ``OUT.ckpt.pt``); the same
+command with ``--resume`` goes on from it after a kill, to the same result.
+
 Deterministic for given arguments and torch thread count. The packaged weights are the second
 command's output as of commit ``a606b4c``, when step 2 was a hand-written PPO; step 2 is now
 stable-baselines3's PPO with that loop's numbers but SB3's details (``docs/design.md`` lists where
@@ -17,6 +20,7 @@ completion from the start state). ``docs/history.md`` has the figures.
 from __future__ import annotations
 
 import argparse
+import os
 
 import torch
 
@@ -44,13 +48,20 @@ def dagger(a: argparse.Namespace) -> None:
 
 
 def ppo(a: argparse.Namespace) -> None:
-    """Step 2: from ``--init``, export to ``--out`` at every test and at the end."""
+    """Step 2: from ``--init``, export to ``--out`` at every test and at the end; the state after
+    every iteration goes to ``--checkpoint``, and ``--resume`` goes on from it."""
+    checkpoint = a.checkpoint or f"{a.out}.ckpt.pt"
+    if os.path.exists(checkpoint) and not a.resume:
+        raise SystemExit(f"{checkpoint} exists: pass --resume to go on from it, or remove it to start over")
+    if a.resume and not os.path.exists(checkpoint):
+        _log(f"no checkpoint at {checkpoint}: starting at iteration 0")
     policy = build_policy(INPUT_DIM, 256)
     policy.load_state_dict(torch.load(a.init, weights_only=True))
     settings = PPOSettings(iterations=a.iterations, envs=a.envs, lr=a.lr, clip=a.clip, epochs=a.epochs,
                            minibatch=a.minibatch, warmup=a.warmup, eval_every=a.eval_every, test_tasks=a.test_tasks,
                            seed=a.seed)
-    tuned = ppo_finetune(policy, settings, _log, on_eval=lambda p: export(p, a.out))
+    tuned = ppo_finetune(policy, settings, _log, on_eval=lambda p: export(p, a.out), checkpoint=checkpoint,
+                         resume=a.resume)
     export(tuned, a.out)
 
 
@@ -82,6 +93,8 @@ def main(argv: list[str] | None = None) -> None:
     q.add_argument("--eval-every", type=int, default=ps.eval_every)
     q.add_argument("--test-tasks", type=int, default=ps.test_tasks, help="first N test tasks for the printed completion")
     q.add_argument("--seed", type=int, default=ps.seed, help="seed of PPO (stable-baselines3) and of the tasks drawn")
+    q.add_argument("--checkpoint", help="state after every iteration (default: OUT.ckpt.pt)")
+    q.add_argument("--resume", action="store_true", help="go on from --checkpoint (the same result as a run never stopped)")
     q.set_defaults(func=ppo)
     a = p.parse_args(argv)
     torch.set_num_threads(a.threads)

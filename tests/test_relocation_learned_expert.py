@@ -126,6 +126,9 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
                                             *(f"w{i}" for i in range(4)), *(f"b{i}" for i in range(4))])
         np.testing.assert_array_equal(raw["norm_mean"], start["0.running_mean"].numpy())  # frozen statistics
         assert not np.array_equal(raw["w0"], start["1.weight"].numpy())  # iteration 1 moved the policy
+    assert torch.load(f"{out}.ckpt.pt", weights_only=True)["iteration"] == 2
+    with pytest.raises(SystemExit, match="exists: pass --resume"):  # not over a run's checkpoint unasked
+        script.main(["ppo", "--init", str(init), "--out", str(out)])
 
 
 def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
@@ -151,3 +154,33 @@ def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
     assert any(not torch.equal(a, b) for a, b in zip(tuned.parameters(), policy.parameters()))
     assert torch.equal(tuned[0].running_mean, policy[0].running_mean)
     assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
+
+
+def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_stopped(tmp_path):
+    """Two iterations, stopped, then resumed to three: the checkpoint after the third (SB3's whole
+    policy with the value layers, Adam's state, the generators) equals an unstopped run's, and the
+    third iteration moved the policy."""
+    from dataclasses import replace
+
+    from gpl_dist.experts import relocation_training as script
+    torch.manual_seed(0)
+    policy = script.build_policy(33, 32).eval()
+    settings = script.PPOSettings(iterations=3, envs=2, warmup=1, eval_every=100, test_tasks=1, minibatch=175)
+    whole, stopped = str(tmp_path / "whole.pt"), str(tmp_path / "stopped.pt")
+    script.ppo_finetune(policy, settings, lambda _: None, checkpoint=whole)
+    script.ppo_finetune(policy, replace(settings, iterations=2), lambda _: None, checkpoint=stopped)
+    after_two = torch.load(stopped, weights_only=True)
+    lines: list[str] = []
+    script.ppo_finetune(policy, settings, lines.append, checkpoint=stopped, resume=True)
+    assert lines[0] == f"resumed after iteration 1 from {stopped}" and lines[1].startswith("iteration 2:")
+    a, b = torch.load(whole, weights_only=True), torch.load(stopped, weights_only=True)
+    assert a["iteration"] == b["iteration"] == 3 and after_two["iteration"] == 2
+    for name in a["policy"]:
+        assert torch.equal(a["policy"][name], b["policy"][name]), name
+    assert torch.equal(a["torch_rng"], b["torch_rng"]) and a["env_rngs"] == b["env_rngs"]
+    moved = [n for n in a["policy"] if not torch.equal(a["policy"][n], after_two["policy"][n])]
+    assert any(n.startswith("mlp_extractor.policy_net") for n in moved)
+    with pytest.raises(ValueError, match="other settings: lr 5e-05 \\(now 0.001\\)"):
+        script.ppo_finetune(policy, replace(settings, lr=1e-3), lambda _: None, checkpoint=stopped, resume=True)
+    with pytest.raises(ValueError, match="another policy"):
+        script.ppo_finetune(script.build_policy(33, 32).eval(), settings, lambda _: None, checkpoint=stopped, resume=True)

@@ -22,9 +22,11 @@ inputs, which the rollout loop of collection, ``workers.loop``, does not); step 
 from __future__ import annotations
 
 import copy
+import hashlib
+import os
 import time
-from dataclasses import dataclass
-from typing import Any, Callable
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Mapping
 
 import gymnasium
 import numpy as np
@@ -192,9 +194,13 @@ class PrivilegedTasks(gymnasium.Env):
         self.action_space = gymnasium.spaces.Discrete(4)
         self.env: RelocationEnv | None = None
         self.extra = np.zeros(INPUT_DIM - 28, np.float32)
+        #: the generator's state before the latest reset's draws: a checkpoint taken between
+        #: episodes restores it, and the resumed run's first reset redraws the same task and seed
+        self.rng_before_reset: Mapping[str, Any] = self.rng.bit_generator.state
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)
+        self.rng_before_reset = self.rng.bit_generator.state
         task = int(self.rng.choice(self.tasks))
         self.env = self.envs.setdefault(task, make_env(task))
         self.extra = privileged_inputs([task])[0]
@@ -341,13 +347,79 @@ def policy_of(model, like: nn.Sequential) -> nn.Sequential:
     return out
 
 
+#: Layout version of step 2's checkpoint (``save_ppo_checkpoint``).
+CHECKPOINT_FORMAT = 1
+#: Settings a resumed run may change: ``iterations`` extends or shortens it; the other two only print.
+_FREE_ON_RESUME = ("iterations", "eval_every", "test_tasks")
+
+
+def fingerprint(policy: nn.Module) -> str:
+    """sha256 over ``policy``'s state_dict (names and bytes): which step-1 policy a run started from."""
+    h = hashlib.sha256()
+    for name, value in policy.state_dict().items():
+        h.update(name.encode())
+        h.update(value.detach().cpu().numpy().tobytes())
+    return h.hexdigest()
+
+
+def save_ppo_checkpoint(path: str, model, s: PPOSettings, init: str, iteration: int) -> None:
+    """Write what step 2 needs to go on after ``iteration`` as if never stopped: SB3's policy
+    (value layers too) and Adam state, the torch and numpy global generators (SB3 samples actions
+    and shuffles minibatches with them), each env's task generator before its latest reset, the
+    step count; with the settings and ``init`` (``fingerprint`` of the starting policy) to check.
+    Atomic (a temporary file renamed); read with ``torch.load(weights_only=True)``."""
+    name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)
+    state = {"format": CHECKPOINT_FORMAT, "init": init, "iteration": iteration,
+             "settings": {k: v for k, v in asdict(s).items() if k not in _FREE_ON_RESUME},
+             "num_timesteps": int(model.num_timesteps), "policy": model.policy.state_dict(),
+             "optimizer": model.policy.optimizer.state_dict(), "torch_rng": torch.get_rng_state(),
+             "numpy_rng": {"name": name, "keys": torch.from_numpy(np.asarray(keys, np.int64)), "pos": int(pos),
+                           "has_gauss": int(has_gauss), "cached_gaussian": float(cached)},
+             "env_rngs": [e.unwrapped.rng_before_reset for e in model.env.envs]}
+    tmp = f"{path}.tmp"
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_ppo_checkpoint(path: str, model, s: PPOSettings, init: str) -> int:
+    """Restore ``save_ppo_checkpoint``'s state into a model fresh from ``sb3_ppo(policy, s)``;
+    returns the iterations it had done. Raises ``ValueError`` naming what differs when the
+    checkpoint is of another layout, starting policy or settings."""
+    state = torch.load(path, weights_only=True)
+    if state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: checkpoint format {state.get('format')!r}; this code reads {CHECKPOINT_FORMAT}")
+    if state["init"] != init:
+        raise ValueError(f"{path} started from another policy than --init")
+    now = {k: v for k, v in asdict(s).items() if k not in _FREE_ON_RESUME}
+    differ = [f"{k} {state['settings'].get(k)!r} (now {v!r})" for k, v in now.items() if state["settings"].get(k) != v]
+    if differ:
+        raise ValueError(f"{path} was made with other settings: {', '.join(differ)}")
+    model.policy.load_state_dict(state["policy"])
+    model.policy.optimizer.load_state_dict(state["optimizer"])
+    model.num_timesteps = state["num_timesteps"]
+    torch.set_rng_state(state["torch_rng"])
+    n = state["numpy_rng"]
+    np.random.set_state((n["name"], n["keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
+    for env, rng_state in zip(model.env.envs, state["env_rngs"], strict=True):
+        env.unwrapped.rng.bit_generator.state = rng_state
+    return int(state["iteration"])
+
+
 def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], None] = print,
-                 on_eval: Callable[[nn.Module], None] | None = None) -> nn.Sequential:
+                 on_eval: Callable[[nn.Module], None] | None = None, checkpoint: str | None = None,
+                 resume: bool = False) -> nn.Sequential:
     """Step 2 (module docstring): SB3's PPO from ``policy``; returns the fine-tuned policy (a new
-    network); ``on_eval`` gets it at every test."""
+    network); ``on_eval`` gets it at every test. With ``checkpoint``, the state is saved there
+    after every iteration; ``resume`` goes on from it, and the result is the same as a run never
+    stopped (for the same torch thread count)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     model = sb3_ppo(policy, s)
+    init = fingerprint(policy)
+    done = 0
+    if resume and checkpoint is not None and os.path.exists(checkpoint):
+        done = load_ppo_checkpoint(checkpoint, model, s, init)
+        log(f"resumed after iteration {done - 1} from {checkpoint}")
     test = split_tasks("relocation", "test")[:s.test_tasks]
     pi_params = [*model.policy.mlp_extractor.policy_net.parameters(), *model.policy.action_net.parameters()]
 
@@ -355,20 +427,22 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
         completion, solved, _, _ = privileged_rollout(net, test, TEST_SEED, label=False)
         return float(completion.mean()), float(solved.mean())
 
-    c, sv = test_completion(policy.eval())
-    log(f"start: test completion {c:.3f}, solved {sv:.2f}")
+    if done == 0:
+        c, sv = test_completion(policy.eval())
+        log(f"start: test completion {c:.3f}, solved {sv:.2f}")
     start = time.perf_counter()
 
     class Progress(BaseCallback):
         """Counts iterations: the value layers alone for ``warmup``; one line per iteration after
-        its update, with a test every ``eval_every``."""
+        its update, with a test every ``eval_every``, then the checkpoint."""
 
-        iteration = 0
+        iteration = done
+        reported = done
         completion = 0.0
 
         def _on_training_start(self) -> None:
             for q in pi_params:
-                q.requires_grad_(s.warmup <= 0)
+                q.requires_grad_(self.iteration >= s.warmup)
 
         def _on_step(self) -> bool:
             return True
@@ -381,10 +455,12 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
                 q.requires_grad_(self.iteration > s.warmup)
 
         def _on_rollout_start(self) -> None:  # the previous iteration's update is done
-            if self.iteration > 0:
-                self.report()
+            self.report()
 
         def report(self) -> None:
+            if self.iteration == self.reported:
+                return
+            self.reported = self.iteration
             line = (f"iteration {self.iteration - 1}: train completion {self.completion:.3f} | "
                     f"{time.perf_counter() - start:.0f} s")
             if self.iteration % s.eval_every == 0:
@@ -394,9 +470,13 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
                 if on_eval is not None:
                     on_eval(net)
             log(line)
+            if checkpoint is not None:
+                save_ppo_checkpoint(checkpoint, self.model, s, init, self.iteration)
 
     progress = Progress()
-    model.learn(total_timesteps=s.iterations * s.envs * EPISODE_STEPS, callback=progress)
+    if done < s.iterations:
+        model.learn(total_timesteps=(s.iterations - done) * s.envs * EPISODE_STEPS, callback=progress,
+                    reset_num_timesteps=False)
     progress.report()  # the last iteration's line
     tuned = policy_of(model, policy)
     c, sv = test_completion(tuned)
