@@ -184,3 +184,18 @@ def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_s
         script.ppo_finetune(policy, replace(settings, lr=1e-3), lambda _: None, checkpoint=stopped, resume=True)
     with pytest.raises(ValueError, match="another policy"):
         script.ppo_finetune(script.build_policy(33, 32).eval(), settings, lambda _: None, checkpoint=stopped, resume=True)
+
+
+def test_the_ppo_stage_envs_hold_only_their_current_episodes_env():
+    """Each of step 2's envs keeps no env of an earlier episode (one per task drawn grew to 24 GB)."""
+    import gc
+    import weakref
+
+    from gpl_dist.experts.relocation_training import PrivilegedTasks
+    tasks = PrivilegedTasks(split_tasks("relocation", "train")[:50], seed=0)
+    tasks.reset()
+    first = weakref.ref(tasks.env)
+    for _ in range(3):
+        tasks.reset()
+    gc.collect()
+    assert first() is None and tasks.env is not None
