@@ -52,10 +52,11 @@ def split_of(domain: str, task_id: int, preferred: tuple[str, ...] = ("train", "
     return "none"
 
 
-def write_splits(domain: str, splits: dict[str, list[int]], seed: int, note: str) -> Path:
-    """Write a domain's split file (used by the domain's generator, then committed)."""
+def write_splits(domain: str, splits: dict[str, list[int]], seed: int, note: str, version: int = 1) -> Path:
+    """Write a domain's split file (used by the domain's generator, then committed); ``version``
+    counts changes of the file's contents (a split added)."""
     path = _DIR / f"{domain}.json"
-    payload = {"domain": domain, "seed": seed, "note": note,
+    payload = {"domain": domain, "seed": seed, "note": note, **({"version": version} if version > 1 else {}),
                "splits": {k: sorted(int(i) for i in v) for k, v in splits.items()}}
     path.write_text(json.dumps(payload, indent=1) + "\n")
     _load_split_file.cache_clear()

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import pickle
+from pathlib import Path
 
 import gymnasium
 import numpy as np
@@ -16,6 +18,8 @@ from gpl_dist.domains import get_domain
 from gpl_dist.envs.relocation import DOMAIN, FIXED_XY, MOVABLE_START, VOCABULARY, RelocationEnv, make_splits, make_task
 from gpl_dist.experts import make_expert
 from gpl_dist.splits import load_splits, split_tasks
+
+SPLIT_FILE = Path(__file__).resolve().parents[1] / "gpl_dist" / "splits" / "relocation.json"
 
 
 def _rollout(env, actions, seed):
@@ -42,14 +46,14 @@ def test_check_env_both_splits():
     from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
     splits = load_splits("relocation")
-    for split in ("train", "test"):
+    for split in ("train", "test", "valid"):
         tid = splits[split][7]
         check_env(RelocationEnv(tid), skip_render_check=True)
         sb3_check_env(RelocationEnv(tid), warn=True)
 
 
 def test_task_id_errors():
-    for bad in (-1, 1000, 2.5, "3", True):
+    for bad in (-1, 1250, 2.5, "3", True):
         with pytest.raises(ValueError, match="task_id"):
             RelocationEnv(bad)
     with pytest.raises(ValueError):
@@ -57,7 +61,7 @@ def test_task_id_errors():
 
 
 def test_tasks_deterministic_and_constrained():
-    for tid in range(0, 1000, 37):
+    for tid in range(0, 1250, 37):
         t = make_task(tid)
         assert t == make_task.__wrapped__(tid)
         x, y = t.target
@@ -74,8 +78,21 @@ def test_splits_file_matches_generator():
     saved = load_splits("relocation")
     fresh = make_splits(0)
     assert {k: list(v) for k, v in saved.items()} == fresh
-    assert len(fresh["train"]) == 750 and len(fresh["test"]) == 250
+    assert len(fresh["train"]) == 750 and len(fresh["test"]) == 250 and len(fresh["valid"]) == 250
     assert not set(fresh["train"]) & set(fresh["test"])
+    # version 2 added valid beyond the paper's 1000 tasks: train and test are version 1's
+    assert set(fresh["train"]) | set(fresh["test"]) == set(range(1000))
+    assert fresh["valid"] == list(range(1000, 1250))
+    assert json.loads(SPLIT_FILE.read_text())["version"] == 2
+
+
+def test_valid_tasks_are_new_draws_of_the_same_generator():
+    """Tasks past 1000 come from make_task's per-task streams: the paper's 1000 are unchanged (a
+    task fixed by hand here) and the new ones are as varied (both kinds, every block)."""
+    assert make_task(0).target == pytest.approx(make_task.__wrapped__(0).target)
+    valid = [make_task(t) for t in range(1000, 1250)]
+    assert {t.block for t in valid} == {0, 1, 2} and {t.target_kind for t in valid} == {"cardinal", "close"}
+    assert len({t.target for t in valid}) == 250
 
 
 def test_episode_length_and_observation_layout():

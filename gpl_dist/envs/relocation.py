@@ -28,7 +28,11 @@ from gpl_dist.roles import DomainSpec, lazy
 # Scene constants (they must agree with assets/relocation.xml).
 # --------------------------------------------------------------------------------------------
 
-NUM_TASKS = 1000
+#: Tasks 0..999 are the paper's 1000 (750 train / 250 test); 1000..1249 are drawn by the same
+#: generator (``make_task``) as a valid split for design choices (split file version 2).
+PAPER_TASKS = 1000
+NUM_VALID_TASKS = 250
+NUM_TASKS = PAPER_TASKS + NUM_VALID_TASKS
 EPISODE_STEPS = 350
 SUCCESS_RADIUS = 0.03
 #: Force the chosen action puts on one slide joint of the gripper (motor range is +-2).
@@ -176,7 +180,8 @@ def _target_ok(p: np.ndarray) -> bool:
 
 @lru_cache(maxsize=None)
 def make_task(task_id: int) -> RelocationTask:
-    """The task ``task_id`` (0..999): goal block, target and instruction, from a per-task seed."""
+    """The task ``task_id`` (0..1249): goal block, target and instruction, from a per-task seed
+    (each task's own stream, so adding tasks past the paper's 1000 changed none of them)."""
     task_id = _check_task_id(task_id)
     rng = np.random.default_rng(np.random.SeedSequence([_TASK_SEED, task_id]))
     block = int(rng.integers(3))
@@ -204,18 +209,26 @@ def make_task(task_id: int) -> RelocationTask:
     )
 
 
+#: The split file's version: 1 had train/test only; 2 adds ``valid`` (tasks beyond the paper's 1000).
+SPLIT_VERSION = 2
+SPLIT_NOTE = ("relocation, version 2: train (750) / test (250) = numpy default_rng(seed).permutation(1000), the "
+              "paper's 1000 tasks, as in version 1; valid (250) = tasks 1000..1249, drawn by make_task's generator "
+              "beyond the paper's 1000, for design choices")
+
+
 def make_splits(seed: int = 0) -> dict[str, list[int]]:
-    """The versioned ``train`` (750) / ``test`` (250) split: a seeded permutation of the 1000 tasks."""
-    perm = np.random.default_rng(seed).permutation(NUM_TASKS)
-    return {"train": sorted(int(i) for i in perm[:750]), "test": sorted(int(i) for i in perm[750:])}
+    """The versioned split: ``train`` (750) / ``test`` (250), a seeded permutation of the paper's
+    1000 tasks, and ``valid`` (250), the tasks drawn beyond them (see ``SPLIT_NOTE``)."""
+    perm = np.random.default_rng(seed).permutation(PAPER_TASKS)
+    return {"train": sorted(int(i) for i in perm[:750]), "test": sorted(int(i) for i in perm[750:]),
+            "valid": list(range(PAPER_TASKS, NUM_TASKS))}
 
 
 def write_relocation_splits(seed: int = 0):
     """Regenerate ``gpl_dist/splits/relocation.json`` (then commit it)."""
     from gpl_dist.splits import write_splits
 
-    return write_splits("relocation", make_splits(seed), seed,
-                        "relocation: 750 train / 250 test tasks, numpy default_rng(seed).permutation(1000)")
+    return write_splits("relocation", make_splits(seed), seed, SPLIT_NOTE, version=SPLIT_VERSION)
 
 
 # --------------------------------------------------------------------------------------------
