@@ -14,9 +14,19 @@ initialised policy, expert labels, the real correction oracle):
 - **gpl-dist**: ``learner.parallel.make_learner`` with the config's ``training`` section
   (``configs/<domain>.yaml``), training over the committed buffer's view as a run does.
 
-It prints both rates and their ratio (target: gpl-dist >= 2x the plain loop). ``--with-load``
-then trains gpl-dist again beside one busy process (a pure-Python spin loop) and prints the
-slowdown against the run alone (target: at most 2.5x on 2 cores).
+It prints both rates and their ratio (target: gpl-dist >= 3x the plain loop), then what the
+learner computes against what this CPU can compute, all measured in this run:
+
+- **FLOPs a sample** of the learner's own training step (``Learner._train_on`` on batches of its
+  own epoch order: forward, backward and Adam), counted by ``torch.utils.flop_counter``; the
+  lookup-based first grid convolution counts none, so this is a lower bound of the arithmetic;
+- the **matmul peak**: GFLOP/s of a 1024 x 1024 fp32 matmul (and bf16 where the CPU has native
+  bf16, ``learner.cpu.native_bf16``) on as many threads as the learner uses in all;
+- the learner's **fraction of that peak**: samples/s x FLOPs a sample / peak (target >= 50 %),
+  against the bf16 peak when the learner trains under bf16 autocast.
+
+``--with-load`` then trains gpl-dist again beside one busy process (a pure-Python spin loop) and
+prints the slowdown against the run alone (target: at most 2.5x on 2 cores).
 """
 
 from __future__ import annotations
@@ -124,6 +134,30 @@ def gpl_dist_learner(cfg, tv, epochs: int) -> tuple[float, int, int]:
         learner.close()
 
 
+def step_flops(cfg, tv, num_batches: int = 8) -> float:
+    """FLOPs a sample of the learner's own step (forward, backward, optimiser), counted by
+    ``torch.utils.flop_counter.FlopCounterMode`` over ``num_batches`` batches of its epoch order,
+    on a learner process of its own (the count is per state: data-parallel slices add up to it)."""
+    import dataclasses
+
+    from torch.utils.flop_counter import FlopCounterMode
+
+    from gpl_dist.domains import get_domain
+    from gpl_dist.models.gpl import build_model_from_config
+    from learner.trainer import Learner
+
+    tcfg = dataclasses.replace(cfg.training, num_learners=1)
+    learner = Learner(build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=0), tcfg)
+    learner.model.train()
+    order = learner._epoch_order(tv)
+    batches = [b for b in order.split(tcfg.batch_size)][:num_batches]
+    counter = FlopCounterMode(display=False)
+    with counter:
+        for idx in batches:
+            learner.step(tv, idx)
+    return counter.get_total_flops() / sum(b.numel() for b in batches)
+
+
 def _spin(stop) -> None:
     while not stop.is_set():
         sum(range(10_000))
@@ -164,7 +198,21 @@ def bench_domain(domain: str, args) -> None:
           f"per-tensor Adam, {where})")
     print(f"[{domain}] gpl-dist learner : {ours_rate:>9,.0f} samples/s  ({ours_n:,} states = {args.epochs} epoch(s), "
           f"batch {t.batch_size}, {learners} learner process(es), states_per_chunk {t.states_per_chunk})")
-    print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x (target >= 2.0)", flush=True)
+    print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x (target >= 3.0)", flush=True)
+    from learner.cpu import matmul_gflops, native_bf16
+
+    flops = step_flops(cfg, tv)
+    used = learners * (t.num_threads or max(1, threads // learners))  # threads the learner uses in all
+    peaks = {"fp32": matmul_gflops(used, torch.float32)}
+    if native_bf16():
+        peaks["bf16"] = matmul_gflops(used, torch.bfloat16)
+    trains_in = "bf16" if getattr(t, "autocast", "") == "bf16" and "bf16" in peaks else "fp32"
+    achieved = ours_rate * flops / 1e9
+    print(f"[{domain}] FLOPs a sample of the learner's step: {flops / 1e3:,.0f} kFLOP (torch.utils.flop_counter)")
+    print(f"[{domain}] matmul peak on {used} thread(s): " + ", ".join(f"{k} {v:,.1f} GFLOP/s" for k, v in peaks.items())
+          + ("" if "bf16" in peaks else "; bf16 not native on this CPU (no avx512_bf16/amx_bf16)"))
+    print(f"[{domain}] learner computes {achieved:,.1f} GFLOP/s = {achieved / peaks[trains_in]:.1%} of the {trains_in} "
+          f"peak (target >= 50%)", flush=True)
     if args.with_load:
         stop = multiprocessing.Event()
         busy = multiprocessing.Process(target=_spin, args=(stop,), daemon=True)

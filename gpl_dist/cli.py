@@ -127,16 +127,21 @@ def cmd_suite_run(args: argparse.Namespace) -> int:
 
 def cmd_suite_status(args: argparse.Namespace) -> int:
     """``gpl-dist suite status``: each run's state (done, evaluate, resume, new, or running with
-    its driver), read from its files."""
+    its driver), read from its files, and the predicted wall time of what is left
+    (``gpl_dist.suite_cost``)."""
     from gpl_dist.suite import load_suite, plan, run_state
+    from gpl_dist.suite_cost import hours, predict
     from storage.lease import lease_holder
 
     suite = load_suite(args.suite)
-    for run in plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ()):
+    runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
+    states, lines = {}, []
+    for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
-        state = "running" if holder else run_state(run, suite)
+        states[run.run_dir] = state = "running" if holder else run_state(run, suite)
         held = f"; {holder.describe()}" if holder else ""
-        print(f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})")
+        lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
+    rl_left: list = []
     if suite.rl is not None:
         from gpl_dist.suite_rl import NotTrainedYet, attempts_current, attempts_jobs, is_current, rl_jobs, trained_fingerprint
 
@@ -153,10 +158,23 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
                 except NotTrainedYet:
                     fingerprints[job.pretrained] = "not trained"
             return fingerprints[job.pretrained]
-        counts = (("RL jobs", sum(is_current(args.out, j, rl_plan.settings(j.domain), start(j)) for j in jobs), len(jobs)),
+        rl_left = [j for j in jobs if not is_current(args.out, j, rl_plan.settings(j.domain), start(j))]
+    cost = predict(suite, args.out, states, tuple(rl_left))
+    predicted = {c.run.run_dir: c for c in cost.runs}
+    for run, line in lines:
+        c = predicted.get(run.run_dir)
+        print(line if c is None else f"{line}  ~{hours(c.seconds)}{'' if c.source == 'entry' else f' ({c.source})'}")
+    if suite.rl is not None:
+        counts = (("RL jobs", len(jobs) - len(rl_left), len(jobs)),
                   ("GPL/GPR attempt sets", sum(attempts_current(args.out, j, rl_plan) for j in points), len(points)))
         for what, done, total in counts:  # made with other PPO settings or from another policy: not done
             print(f"rl: {done} of {total} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
+    todo = len(cost.runs)
+    bound = "" if cost.complete else "at least "
+    print(f"predicted: {todo} run(s) and {cost.rl_jobs} RL job(s) left, {bound}{hours(cost.total_seconds)} on this machine "
+          f"(RL {hours(cost.rl_seconds)}), from this suite's finished work"
+          + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
+          + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
     return 0
 
 

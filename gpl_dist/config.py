@@ -117,6 +117,8 @@ class TrainingConfig:
     """Torch device for the learner: auto (CUDA when present), cpu or cuda."""
     num_threads: int = 1
     """Torch threads per learner process; more stall beside other busy processes, sum irreproducibly (0: cores / learners)."""
+    conditioning_thread: bool = False
+    """Encode each step's conditioning (per attempt) on a second thread beside the states (per state): bitwise the same."""
     num_learners: int = 1
     """Data-parallel learner processes, batch_size split among them (0: one per core of the driver's machine)."""
     engine: str = "processes"
@@ -398,6 +400,19 @@ def config_to_dict(cfg: Any) -> dict:
         elif isinstance(value, tuple):
             value = list(value)
         out[f.name] = value
+    return out
+
+
+#: Settings that change how fast a run trains, never what it computes (tested bitwise): a run
+#: made with other values of these is the same run (``results_dict``).
+SPEED_ONLY = (("training", "conditioning_thread"),)
+
+
+def results_dict(cfg: RunConfig) -> dict:
+    """``config_to_dict(cfg)`` without the ``SPEED_ONLY`` settings: what a run's results depend on."""
+    out = config_to_dict(cfg)
+    for section, key in SPEED_ONLY:
+        out[section].pop(key, None)
     return out
 
 

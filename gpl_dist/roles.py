@@ -208,6 +208,14 @@ class Policy(Protocol):
         ``z``; ``previous`` (``gpl_dist.models.mivoa.PreviousStep``) when ``uses_previous_step``."""
         ...
 
+    def encode_states(self, obs: Any, previous: Any = None) -> Any:
+        """The part of ``action_logits`` that does not read ``z``: ``(B, S)`` state encodings."""
+        ...
+
+    def head_logits(self, states: Any, z: Any, previous: Any = None) -> Any:
+        """``action_logits`` from ``encode_states``'s output: ``head_logits(encode_states(obs, p), z, p)``."""
+        ...
+
 
 @runtime_checkable
 class BufferWriter(Protocol):

@@ -40,7 +40,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from gpl_dist.config import ConfigError, RunConfig, config_to_dict, load_config
+from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
 from gpl_dist.errors import RunDirError
 from gpl_dist.language import PHRASINGS
 
@@ -281,7 +281,7 @@ def _started(run_dir: Path, record: dict, commit: str) -> None:
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
     """A run dir made by another version of its entry is refused: its results would be mixed."""
     saved = run.run_dir / "config.yaml"
-    if saved.is_file() and config_to_dict(load_config(saved)) != config_to_dict(cfg):
+    if saved.is_file() and results_dict(load_config(saved)) != results_dict(cfg):
         raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
                           "(the suite file or the base config changed): use another --out, or remove that run dir")
 

@@ -39,6 +39,9 @@ class TensorView:
         instruction_values: float32 ``(A, F)`` numeric full information of each attempt
             (``with_full_information``), or None.
         attempt_rewards: float32 ``(A,)`` each attempt's summed reward (NaN where not recorded), or None.
+        host_index: host copies of ``(attempt_rows, context_rows)`` when the view lives on a GPU
+            (``to``): each batch's index structure is then built on the host (``batch``), so the
+            host never waits for the GPU to finish a ``torch.unique``; None on the host.
     """
 
     observations: torch.Tensor
@@ -54,6 +57,7 @@ class TensorView:
     attempt_task_ids: torch.Tensor | None = None
     instruction_values: torch.Tensor | None = None
     attempt_rewards: torch.Tensor | None = None
+    host_index: tuple[torch.Tensor, torch.Tensor] | None = None
 
     @classmethod
     def from_view(cls, view, previous_steps: bool = False) -> "TensorView":
@@ -86,7 +90,9 @@ class TensorView:
         """This view on ``device`` (one copy of every tensor; itself when already there)."""
         if self.observations.device == device:
             return self
-        return dataclasses.replace(self, **{k: x.to(device) for k, x in self._tensors().items() if x is not None})
+        host = None if device.type == "cpu" else (self.attempt_rows.cpu(), self.context_rows.cpu())
+        return dataclasses.replace(self, host_index=host,
+                                   **{k: x.to(device) for k, x in self._tensors().items() if x is not None})
 
     @property
     def nbytes(self) -> int:
@@ -94,7 +100,7 @@ class TensorView:
         return sum(x.numel() * x.element_size() for x in self._tensors().values() if x is not None)
 
     def _tensors(self) -> dict[str, torch.Tensor | None]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name != "host_index"}
 
     @property
     def num_states(self) -> int:
@@ -111,24 +117,33 @@ class TensorView:
         return PreviousStep(self.observations[self.previous_rows[idx]], self.previous_actions[idx])
 
     def batch(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor]:
-        """``(observations, labels, conditioning, attempt_rows_in_conditioning)`` of states ``idx``."""
-        rows = self.attempt_rows[idx]
+        """``(observations, labels, conditioning, attempt_rows_in_conditioning)`` of states ``idx``
+        (host or device indices), on the view's device."""
+        if self.host_index is None:
+            rows_of, ctx_of, put = self.attempt_rows, self.context_rows, lambda t: t  # noqa: E731
+        else:  # the index structure on the host, then only index tensors go to the device
+            rows_of, ctx_of = self.host_index
+            device, pin = self.observations.device, self.observations.is_cuda
+            put = lambda t: (t.pin_memory() if pin else t).to(device, non_blocking=pin)  # noqa: E731
+            idx = idx.cpu()
+        rows = rows_of[idx]
         uniq, inverse = torch.unique(rows, return_inverse=True)
-        ctx = self.context_rows[uniq]
+        ctx = ctx_of[uniq]
         valid = ctx >= 0
         # each earlier attempt is encoded once, however many later attempts in the batch use it
         earlier, slot_of = torch.unique(ctx[valid], return_inverse=True)
         slots = torch.full_like(ctx, -1)
         slots[valid] = slot_of
+        idx, uniq, earlier = put(idx), put(uniq), put(earlier)
         cond = Conditioning(
             instruction_ids=self.instruction_ids[uniq],
             trajectories=self.trajectories[earlier],
             correction_ids=self.correction_ids[earlier],
-            slots=slots,
+            slots=put(slots),
             instruction_values=None if self.instruction_values is None else self.instruction_values[uniq],
             correction_values=None if self.attempt_rewards is None else self.attempt_rewards[earlier],
         )
-        return self.observations[idx], self.expert_actions[idx], cond, inverse
+        return self.observations[idx], self.expert_actions[idx], cond, put(inverse)
 
 
 def find_previous_steps(view) -> tuple[np.ndarray, np.ndarray]:

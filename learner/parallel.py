@@ -99,8 +99,7 @@ def _shared(tv: TensorView) -> TensorView:
                             "give the container more (docker --shm-size) or set training.num_learners=1")
     def share(t: torch.Tensor) -> torch.Tensor:
         return torch.empty_like(t).share_memory_().copy_(t)
-    fields = {f.name: getattr(tv, f.name) for f in dataclasses.fields(tv)}
-    return dataclasses.replace(tv, **{k: share(v) for k, v in fields.items() if v is not None})
+    return dataclasses.replace(tv, **{k: share(v) for k, v in tv._tensors().items() if v is not None})  # type: ignore[arg-type]
 
 
 def _serve(rank: int, size: int, store_dir: str, model: nn.Module, cfg: TrainingConfig, inbox, driver_pid: int) -> None:
@@ -116,6 +115,7 @@ def _serve(rank: int, size: int, store_dir: str, model: nn.Module, cfg: Training
             continue
         # any other error (a view that cannot arrive) ends this process: rank 0 then fails at once
         if view is None:
+            learner.close()
             return
         learner.train_round(view)
         view = None  # free this round's shared memory while idle
@@ -194,6 +194,8 @@ class DataParallelLearner:
                 proc.join(timeout=5)
         self._procs, self._inboxes = [], []
         shutil.rmtree(self._dir, ignore_errors=True)
+        if hasattr(self, "_local"):
+            self._local.close()
 
 
 def make_learner(model: nn.Module, cfg: TrainingConfig, seed: int = 0) -> Learner | DataParallelLearner:

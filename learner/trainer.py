@@ -32,8 +32,10 @@ from __future__ import annotations
 import copy
 import os
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Any, Callable, Iterator, Protocol
 
 import torch
 from torch import nn
@@ -44,6 +46,11 @@ from gpl_dist.models.gpl import Conditioning, GPLPolicy
 from gpl_dist.models.mivoa import PreviousStep
 from learner.batches import TensorView
 from learner.health import PROBE_STATES, EncoderHealth, encoder_health
+
+#: A step's inputs: observations, labels, conditioning, attempt rows, targets, previous steps.
+Batch = tuple[torch.Tensor, torch.Tensor, Conditioning, torch.Tensor, torch.Tensor, PreviousStep | None]
+#: Batches built ahead of the step being trained (``Learner._prefetched``; 0 builds them in line).
+PREFETCH = 2
 
 
 def resolve_device(name: str) -> torch.device:
@@ -174,6 +181,17 @@ class Learner:
         # cost more than the update itself on a CPU
         self.optimizer = torch.optim.Adam([self.flat_parameters], lr=cfg.learning_rate, fused=True)
         self.generator = torch.Generator().manual_seed(seed)
+        self._builder: ThreadPoolExecutor | None = None  # builds the next batches (``_prefetched``)
+        # the conditioning branch of each step (``_two_branch_step``), when asked for
+        self._branches: ThreadPoolExecutor | None = self._thread("gpl-branch") if cfg.conditioning_thread else None
+
+    def _thread(self, name: str) -> ThreadPoolExecutor:
+        """A helper thread of this learner whose ops run on as many intra-op threads as its own
+        (OpenMP's thread count is per thread: a new thread would otherwise use every core, sum
+        in another order and oversubscribe them)."""
+        threads = torch.get_num_threads()
+        return ThreadPoolExecutor(max_workers=1, thread_name_prefix=name, initializer=torch.set_num_threads,
+                                  initargs=(threads,))
 
     def load_optimizer_state(self, state: dict) -> None:
         """Adam's moments from a checkpoint (also one written with one entry per parameter tensor,
@@ -197,7 +215,11 @@ class Learner:
             group["fused"], group["foreach"] = True, None
 
     def close(self) -> None:
-        """Nothing to release (``learner.parallel.DataParallelLearner`` stops its processes)."""
+        """Stop the batch-building thread (``learner.parallel.DataParallelLearner`` also stops its processes)."""
+        for pool in (self._builder, self._branches):
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+        self._builder = self._branches = None
 
     def weights(self) -> dict:
         from gpl_dist.models.gpl import state_dict_to_numpy
@@ -215,16 +237,17 @@ class Learner:
         rank, size = (0, 1) if self.group is None else (self.group.rank, self.group.size)
         last_conditioning = None
         for epoch in range(self.cfg.num_epochs_per_round):
-            perm = self._epoch_order(tv).to(tv.observations.device)
+            perm = self._epoch_order(tv)  # on the host: batches are indexed from there (TensorView.batch)
             # summed on the device: reading a GPU's loss every step would wait for every step
             loss_total = torch.zeros((), dtype=torch.float64, device=self.device)
             correct_total, seen = torch.zeros((), dtype=torch.long, device=self.device), 0
+            steps_of_epoch = []
             for idx in perm.split(self.cfg.batch_size):
                 if idx.numel() < 2 * size and (size > 1 or n >= 2):
                     continue  # BatchNorm needs two samples on every learner
-                mine = idx[rank * idx.numel() // size:(rank + 1) * idx.numel() // size]
-                batch = self._gather(tv, mine)
-                loss, hits = self._train_on(*batch, share=mine.numel() / idx.numel())
+                steps_of_epoch.append((idx[rank * idx.numel() // size:(rank + 1) * idx.numel() // size], idx.numel()))
+            for (mine, whole), batch in zip(steps_of_epoch, self._prefetched(tv, [m for m, _ in steps_of_epoch])):
+                loss, hits = self._train_on(*batch, share=mine.numel() / whole)
                 last_conditioning = batch[2]
                 loss_total += loss * mine.numel()
                 correct_total += hits
@@ -240,6 +263,26 @@ class Learner:
         return RoundStats(loss=loss_sum / max(seen, 1), accuracy=correct / max(seen, 1), num_states=n,
                           num_steps=steps, seconds=seconds, correction_spread=spread,
                           encoder_health=self.encoder_health(tv))
+
+    def _prefetched(self, tv: TensorView, steps: list[torch.Tensor]) -> Iterator[Batch]:
+        """``_gather(tv, idx)`` of each of ``steps``, built ``PREFETCH`` steps ahead on a second
+        thread while this one trains: the batch's index structure (its distinct attempts and
+        earlier attempts) and its gathers run beside the step on another core. Each batch is a
+        function of its indices only, so the steps see exactly what they would see built in line."""
+        if PREFETCH < 1:
+            yield from (self._gather(tv, idx) for idx in steps)
+            return
+        if self._builder is None:
+            self._builder = self._thread("gpl-batches")
+        ahead: deque[Future] = deque()
+        try:
+            for i in range(len(steps)):
+                while len(ahead) <= PREFETCH and i + len(ahead) < len(steps):
+                    ahead.append(self._builder.submit(self._gather, tv, steps[i + len(ahead)]))
+                yield ahead.popleft().result()
+        finally:
+            for future in ahead:
+                future.cancel()
 
     def encoder_health(self, tv: TensorView) -> tuple[EncoderHealth, ...]:
         """See ``RoundStats.encoder_health``: states spread evenly over the view (no random draw, so
@@ -326,24 +369,57 @@ class Learner:
         free_bytes, _ = torch.cuda.mem_get_info(self.device)
         return tv.to(self.device) if tv.nbytes < free_bytes // 2 else tv
 
-    def _gather(self, tv: TensorView, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, Conditioning,
-                                                                  torch.Tensor, torch.Tensor, PreviousStep | None]:
+    def _gather(self, tv: TensorView, idx: torch.Tensor) -> Batch:
         """The batch of states ``idx``, on the learner's device (with each state's previous step
         for a model that reads it)."""
         obs, labels, cond, rows = tv.batch(idx)
         dev = self.device
+        idx = idx.to(tv.observations.device, non_blocking=True)
         previous = tv.previous(idx).to(dev) if self.model.uses_previous_step else None
         return obs.to(dev), labels.to(dev), cond.to(dev), rows.to(dev), tv.targets(idx).to(dev), previous
+
+    def _two_branch_step(self, obs, cond, rows, targets, previous, share: float) -> tuple[torch.Tensor, torch.Tensor]:
+        """Forward and backward of one step with the conditioning branch (``encode_conditioning``,
+        per attempt) on a second thread beside the state branch (``encode_states``, per state):
+        the graph is cut where they meet the head, the head's backward hands each branch its
+        gradient, and the branches run their backward each on its thread. They share no
+        parameter, so every op and sum is the one-thread step's: bitwise the same result."""
+        model: Any = self.model  # a GPLPolicy or MIVOAPolicy (gpl_dist.roles.Policy)
+        assert self._branches is not None
+        z_future = self._branches.submit(model.encode_conditioning, cond)
+        states = model.encode_states(obs, previous)
+        z = z_future.result()
+        z_in, states_in = z.detach().requires_grad_(z.requires_grad), states.detach().requires_grad_(states.requires_grad)
+        logits = model.head_logits(states_in, z_in[rows], previous)
+        loss = nn.functional.cross_entropy(logits, targets)
+        self.flat_grads.zero_()
+        # the gradients at the cut as the head's backward makes them (a .grad would be re-laid out
+        # as a contiguous copy, and a BatchNorm's backward sums a strided gradient in another order)
+        head = [p for p in model.head.parameters() if p.requires_grad]
+        cut = [t for t in (states_in, z_in) if t.requires_grad]
+        grads = torch.autograd.grad(loss * share if share != 1.0 else loss, cut + head)
+        for p, g in zip(head, grads[len(cut):]):
+            p.grad.add_(g)  # type: ignore[union-attr]  # a view of flat_grads, as backward would add
+        at_cut = dict(zip((id(t) for t in cut), grads))
+        back = self._branches.submit(torch.autograd.backward, z, at_cut[id(z_in)]) if z.requires_grad else None
+        if states.requires_grad:
+            torch.autograd.backward(states, at_cut[id(states_in)])
+        if back is not None:
+            back.result()
+        return logits, loss
 
     def _train_on(self, obs, labels, cond, rows, targets, previous=None,
                   share: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """One step on a batch; ``share`` is this learner's fraction of a group's global batch.
         Returns the batch's mean loss and its number of correct argmax actions, as 0-d tensors on
         the learner's device."""
-        logits = self.model(obs, cond, rows, previous)
-        loss = nn.functional.cross_entropy(logits, targets)
-        self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
-        (loss * share if share != 1.0 else loss).backward()
+        if self._branches is None:
+            logits = self.model(obs, cond, rows, previous)
+            loss = nn.functional.cross_entropy(logits, targets)
+            self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
+            (loss * share if share != 1.0 else loss).backward()
+        else:
+            logits, loss = self._two_branch_step(obs, cond, rows, targets, previous, share)
         if self.group is not None:
             self.group.all_reduce_sum_(self.flat_grads)
         self.optimizer.step()

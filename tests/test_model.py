@@ -300,6 +300,29 @@ def test_grid_encoder_is_a_conv2d_over_one_hot_channels(channels):
         assert torch.allclose(fast, ref, atol=1e-4)
 
 
+def test_first_conv_backward_is_bitwise_the_tap_by_tap_sum():
+    """The first layer's table gradient, built from shifted windows of the padded output gradient,
+    equals bit for bit the sum written tap by tap (each cell's gradient of every tap, zero where a
+    tap feeds no output, added into its group's rows): the same numbers added in the same order."""
+    from gpl_dist.models.gpl import _TAPS, GridStateEncoder, _FirstConv2x2
+    d = get_domain("multiroom")
+    torch.manual_seed(0)
+    enc = GridStateEncoder(d.obs_shape, d.obs_categories, (8, 8), (32,))
+    rows = enc.group_rows(random_obs(d, 40))
+    table = enc.group_tables().detach().requires_grad_()
+    out = _FirstConv2x2.apply(table, rows)
+    upstream = torch.randn(out.shape, generator=torch.Generator().manual_seed(1))
+    (grad_table,) = torch.autograd.grad(out, table, upstream)
+    b, h, w, g = rows.shape
+    per_cell = torch.zeros(b, h, w, 4, out.shape[-1])
+    for k, (di, dj) in enumerate(_TAPS):
+        per_cell[:, di:di + h - 1, dj:dj + w - 1, k] = upstream
+    want = torch.zeros_like(table)
+    for j in range(g):
+        want.index_add_(0, rows[..., j].reshape(-1), per_cell.view(-1, table.shape[1]))
+    assert torch.equal(grad_table, want)
+
+
 def test_conv1d_channels_last_matches_conv1d():
     from torch import nn
 

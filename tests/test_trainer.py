@@ -93,6 +93,42 @@ def test_training_is_deterministic(tmp_path):
     assert all(np.array_equal(w1[k], w2[k]) for k in w1)
 
 
+def test_prefetched_batches_train_exactly_as_batches_built_in_line(tmp_path):
+    """The round's batches are built on a second thread: the weights and the loss are bitwise those
+    of stepping through the same epoch order with batches built in line, one after another."""
+    tv = TensorView.from_view(_view(tmp_path, rounds=2))
+    cfg = _cfg(num_epochs_per_round=2, batch_size=48)
+    ahead = Learner(build_model(get_domain("multiroom"), seed=3), cfg, seed=5)
+    stats = ahead.train_round(tv)
+    inline = Learner(build_model(get_domain("multiroom"), seed=3), cfg, seed=5)
+    inline.model.train()
+    losses = []
+    for _ in range(cfg.num_epochs_per_round):
+        order = inline._epoch_order(tv)
+        losses = [inline.step(tv, idx) for idx in order.split(cfg.batch_size) if idx.numel() >= 2]
+    assert stats.num_steps == 2 * len(losses) > 4
+    last_epoch = sum(loss * n for (loss, _), n in zip(losses, [i.numel() for i in order.split(48) if i.numel() >= 2]))
+    assert stats.loss == pytest.approx(last_epoch / tv.num_states, rel=1e-6)  # summed in float32 products there
+    w_ahead, w_inline = state_dict_to_numpy(ahead.model), state_dict_to_numpy(inline.model)
+    assert all(np.array_equal(w_ahead[k], w_inline[k]) for k in w_ahead)  # BatchNorm statistics too
+    ahead.close()
+    assert ahead._builder is None
+
+
+def test_a_batch_indexed_from_the_host_equals_one_indexed_where_the_view_lives(tmp_path):
+    """A view on a GPU builds each batch's index structure from host copies (``host_index``):
+    the batch is the same as one indexed in place (here both on the CPU, the path the GPU takes)."""
+    tv = TensorView.from_view(_view(tmp_path, rounds=2))
+    hosted = dataclasses.replace(tv, host_index=(tv.attempt_rows.clone(), tv.context_rows.clone()))
+    idx = torch.randperm(tv.num_states, generator=torch.Generator().manual_seed(1))[:40]
+    (o1, l1, c1, r1), (o2, l2, c2, r2) = tv.batch(idx), hosted.batch(idx)
+    assert c1.trajectories.shape[0] > 0  # the batch has earlier attempts to index
+    assert torch.equal(o1, o2) and torch.equal(l1, l2) and torch.equal(r1, r2)
+    for f in ("instruction_ids", "trajectories", "correction_ids", "slots", "correction_values"):
+        a, b = getattr(c1, f), getattr(c2, f)
+        assert a is not None and torch.equal(a, b), f
+
+
 def test_correction_spread_reports_a_dead_correction_module(tmp_path):
     from learner.batches import TensorView
     from learner.driver import RoundMetrics, format_round
@@ -306,3 +342,31 @@ def test_the_learner_feeds_every_method_what_the_worker_acted_on(tmp_path, domai
         a = view.attempt_rows[i]
         key = (int(view.task_id[a]), int(view.attempt_index[a]), int(view.timesteps[i]))
         torch.testing.assert_close(logits_learner[i], logits_worker[key], rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("domain_name,variant", [("multiroom", "gpl"), ("relocation", "gpl"), ("multiroom", "gpr"),
+                                                 ("relocation", "full_information"), ("multiroom", "no_trajectory"),
+                                                 ("multiroom", "instruction_only"), ("multiroom", "mivoa")])
+def test_the_conditioning_thread_trains_bitwise_as_one_thread(tmp_path, domain_name, variant):
+    """``training.conditioning_thread`` runs each step's conditioning on a second thread: for every
+    kind of network (GPL's variants, the numeric full information, GPR, MIVOA) the round trains
+    to bitwise the same weights, BatchNorm statistics, loss and accuracy as one thread does."""
+    domain = get_domain(domain_name)
+    worker = make_worker(domain_name, num_corrections=2, variant=variant,
+                         trajectory_ends_at_last_state=domain_name == "relocation")
+    root = tmp_path / "run"
+    unit = WorkUnit(round_index=0, unit_index=0, task_ids=(1, 2, 3), split="train", seed=2, policy_version=0)
+    attempts = worker.collect(unit.task_ids, unit.split, seed=unit.seed, round_index=0)
+    commit_round(root, 0, [ShardWriter(root, "r").write_unit(unit, attempts, worker_id="w")])
+    view = BufferReader(root).load_training_view(trajectory_stride=domain.trajectory_stride,
+                                                 trajectory_end_aligned=domain_name == "relocation")
+    results = []
+    for thread in (False, True):
+        model = build_model(domain, variant, seed=3, policy_batchnorm=True, conv_batchnorm=True)
+        learner = Learner(model, _cfg(batch_size=96, conditioning_thread=thread), seed=1)
+        stats = learner.train_round(view)
+        learner.close()
+        results.append((stats.loss, stats.accuracy, stats.num_steps, state_dict_to_numpy(learner.model)))
+    (l1, a1, n1, w1), (l2, a2, n2, w2) = results
+    assert (l1, a1, n1) == (l2, a2, n2) and n1 >= 2
+    assert all(np.array_equal(w1[k], w2[k]) for k in w1)

@@ -125,7 +125,8 @@ class _FirstConv2x2(torch.autograd.Function):
 
     Forward: one ``embedding_bag`` sum over the 4 taps x G groups of each output cell (no
     ``(B, H, W, 4 * out)`` intermediate). Backward: the tap gradients of each *cell* (one buffer,
-    written once), then one ``index_add_`` per group over ``B*H*W`` rows of width ``4 * out``:
+    one ``cat`` of shifted windows of the padded output gradient), then one ``index_add_`` per
+    group over ``B*H*W`` rows of width ``4 * out``:
     4x fewer, wider rows than adding per output cell and tap, which is what makes it fast on a CPU.
     """
 
@@ -145,11 +146,11 @@ class _FirstConv2x2(torch.autograd.Function):
         (rows,) = ctx.saved_tensors
         b, h, w, g = rows.shape
         out = grad.shape[-1]
-        per_cell = grad.new_empty(b, h, w, 4, out)
-        for k, (di, dj) in enumerate(_TAPS):  # cell (i, j) feeds output (i - di, j - dj) through tap k
-            per_cell[:, di:di + h - 1, dj:dj + w - 1, k] = grad
-            per_cell[:, h - 1 if di == 0 else 0, :, k] = 0.0  # the row and column tap k never feeds
-            per_cell[:, :, w - 1 if dj == 0 else 0, k] = 0.0
+        # cell (i, j) feeds output (i - di, j - dj) through tap k: with the output gradient padded by
+        # a zero border, tap k's gradient at every cell is one shifted window of it (zero where the
+        # tap feeds no output), and the four windows side by side are each cell's row, in one copy
+        padded = nn.functional.pad(grad, (0, 0, 1, 1, 1, 1))
+        per_cell = torch.cat([padded[:, 1 - di:1 - di + h, 1 - dj:1 - dj + w] for di, dj in _TAPS], dim=-1)
         per_cell = per_cell.view(-1, 4 * out)
         grad_table = grad.new_zeros(ctx.table_shape)
         for j in range(g):
@@ -451,7 +452,16 @@ class GPLPolicy(nn.Module):
     def action_logits(self, obs: torch.Tensor, z: torch.Tensor, previous=None) -> torch.Tensor:
         """Logits ``(B, num_actions)`` for states ``obs`` under per-state conditioning ``z``
         (``previous``, the step before each state, is for policies that use it; GPL does not)."""
-        return self.head(torch.cat([self.state(obs), z], dim=1))
+        return self.head_logits(self.encode_states(obs, previous), z, previous)
+
+    def encode_states(self, obs: torch.Tensor, previous=None) -> torch.Tensor:
+        """``(B, S)``: the state encoder's output for ``obs`` (the part of ``action_logits`` that
+        does not read ``z``; the learner runs it beside ``encode_conditioning``)."""
+        return self.state(obs)
+
+    def head_logits(self, states: torch.Tensor, z: torch.Tensor, previous=None) -> torch.Tensor:
+        """Logits from ``encode_states``'s output and per-state conditioning ``z``."""
+        return self.head(torch.cat([states, z], dim=1))
 
     def forward(self, obs: torch.Tensor, cond: Conditioning, attempt_rows: torch.Tensor, previous=None) -> torch.Tensor:
         """Logits for states ``obs (B, *O)``; ``attempt_rows (B,)`` picks each state's row of ``cond``."""

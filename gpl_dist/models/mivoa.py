@@ -100,12 +100,22 @@ class MIVOAPolicy(nn.Module):
 
     def action_logits(self, obs: torch.Tensor, z: torch.Tensor, previous: PreviousStep | None = None) -> torch.Tensor:
         """Logits ``(B, num_actions)``; ``previous`` is required (the state before each one)."""
+        return self.head_logits(self.encode_states(obs, previous), z, previous)
+
+    def encode_states(self, obs: torch.Tensor, previous: PreviousStep | None = None) -> torch.Tensor:
+        """``(B, S)``: the current and previous frames through the state encoder (what
+        ``action_logits`` computes without ``z``)."""
         if previous is None:
             raise ValueError("MIVOA acts on the current and the previous step: pass previous=PreviousStep(...)")
-        frames = torch.cat([obs, previous.observations], dim=-1)  # channels (grid) or features (vector)
+        return self.state(torch.cat([obs, previous.observations], dim=-1))  # channels (grid) or features (vector)
+
+    def head_logits(self, states: torch.Tensor, z: torch.Tensor, previous: PreviousStep | None = None) -> torch.Tensor:
+        """Logits from ``encode_states``'s output, ``z`` and the previous action."""
+        if previous is None:
+            raise ValueError("MIVOA acts on the current and the previous step: pass previous=PreviousStep(...)")
         none = torch.full_like(previous.actions, self.num_actions)
         action = nn.functional.one_hot(torch.where(previous.actions < 0, none, previous.actions), self.num_actions + 1)
-        return self.head(torch.cat([self.state(frames), z, action.to(z.dtype)], dim=1))
+        return self.head(torch.cat([states, z, action.to(z.dtype)], dim=1))
 
     def forward(self, obs: torch.Tensor, cond: Conditioning, attempt_rows: torch.Tensor,
                 previous: PreviousStep | None = None) -> torch.Tensor:
