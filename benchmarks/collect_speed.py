@@ -31,12 +31,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import multiprocessing as mp
+import os
 import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-import torch
+# one BLAS thread in this process, as Ray gives a 1-CPU rollout actor (OMP_NUM_THREADS=1): the naive
+# loop's expert then runs as it would there (set before numpy starts OpenBLAS)
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
