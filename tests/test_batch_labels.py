@@ -142,3 +142,31 @@ def test_a_task_that_fails_mid_attempt_is_dropped_alike_in_both_paths():
     assert [f.task_id for f in batched.failures] == [f.task_id for f in per_env.failures] == [tasks[1]]
     assert tasks[1] not in {a.task_id for a in batched.attempts}
     _assert_same_records(batched, per_env)
+
+
+class _ExpertCannotReadAtStep(RelocationEnv):
+    """A relocation env the expert cannot read (``unwrapped`` raises) from step ``BREAK_AT`` on."""
+
+    BREAK_AT = 40
+
+    @property
+    def unwrapped(self):
+        if self.steps >= self.BREAK_AT:
+            raise RuntimeError("the state cannot be read")
+        return self
+
+
+def test_a_task_the_expert_fails_on_is_found_in_the_batch_and_dropped_alone():
+    """``label_batch`` raises for the whole batch: each env is labelled alone, only the one at
+    fault fails, and the others' records are those of the per-env path."""
+    d = get_domain("relocation")
+    tasks = split_tasks("relocation", "train")[:4]
+    broken = dataclasses.replace(
+        d, make_env=lambda t, **kw: _ExpertCannotReadAtStep(t, **kw) if t == tasks[2] else d.make_env(t, **kw))
+    expert = LearnedRelocationExpert()
+    batched = _relocation_rollout(expert, broken).run(tasks, 1, seed=6)
+    per_env = _relocation_rollout(PerEnvLabels(expert), broken).run(tasks, 1, seed=6)
+    assert [(f.task_id, f.stage) for f in batched.failures] == [(f.task_id, f.stage) for f in per_env.failures] \
+        == [(tasks[2], "step/expert")]
+    _assert_same_records(batched, per_env)
+    assert {a.task_id for a in batched.attempts} == set(tasks) - {tasks[2]}

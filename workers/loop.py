@@ -6,10 +6,10 @@ the instruction alone (or on the full-information text); after each attempt that
 task, the correction source gives a correction, and the next attempt is conditioned on every
 earlier (trajectory, correction) pair, up to ``num_corrections`` corrections. All tasks of the batch
 advance together, so each environment step costs one batched policy forward for the batch; an
-expert, when given, labels every visited state in-process (one batched call per step for an
-expert that has ``label_batch``, ``gpl_dist.roles.BatchExpert``; the labels are the same bits
-either way). A task whose env, expert or correction
-source raises is dropped (``TaskFailure``) and the others go on.
+expert, when given, labels every visited state in-process (with one call a step for an expert
+that has ``label_batch``, ``gpl_dist.roles.BatchExpert``: the same labels, bit for bit, as one
+env at a time). A task whose env, expert or correction source raises is dropped
+(``TaskFailure``) and the others go on.
 
 Everything is a function of the seed: reset seeds ``derive_seed(seed, task, k)``, one action
 sampling stream per batch named by its tasks (independent of which process runs it), correction
