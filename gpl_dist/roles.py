@@ -163,6 +163,17 @@ class Expert(Protocol):
 
 
 @runtime_checkable
+class BatchExpert(Expert, Protocol):
+    """An ``Expert`` that also labels many envs with one call (one batched forward of a learned
+    expert); the rollout loop labels every step's envs with it when the expert has it."""
+
+    def label_batch(self, envs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+        """``(actions, probs)``: int64 ``(n,)`` and float32 ``(n, num_actions)``, row ``i`` the
+        same bits as ``label(envs[i])`` (a label may not depend on the batch it is computed in)."""
+        ...
+
+
+@runtime_checkable
 class CorrectionOracle(Protocol):
     """Generates the correction for the attempt that just ended in ``env``."""
 

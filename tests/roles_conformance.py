@@ -36,6 +36,10 @@ def experts(a: MultiRoomExpert, b: RelocationExpert, c: LearnedRelocationExpert)
     return a, b, c
 
 
+def batch_experts(c: LearnedRelocationExpert) -> tuple[roles.BatchExpert, ...]:
+    return (c,)
+
+
 def oracles(a: MultiRoomCorrector, b: RelocationCorrector) -> tuple[roles.CorrectionOracle, ...]:
     return a, b
 

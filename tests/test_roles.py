@@ -9,6 +9,7 @@ from gpl_dist import roles
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.experts import make_expert
+from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
 from gpl_dist.models.gpl import build_model
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter
@@ -24,6 +25,8 @@ def test_every_implementation_is_its_role(tmp_path):
     assert all(isinstance(e, roles.TaskEnv) for e in envs)
     experts = rc.experts(make_expert(envs[0]), make_expert(envs[1]), make_expert(envs[1], "learned"))
     assert all(isinstance(x, roles.Expert) for x in experts)
+    assert all(isinstance(x, roles.BatchExpert) for x in rc.batch_experts(LearnedRelocationExpert()))
+    assert not any(isinstance(x, roles.BatchExpert) for x in experts[:2])  # the planners label one env at a time
     oracles = rc.oracles(make_corrector("multiroom"), make_corrector("relocation"))
     assert all(isinstance(o, roles.CorrectionOracle) for o in oracles)
     model = build_model(mr, seed=0)

@@ -6,8 +6,10 @@ the instruction alone (or on the full-information text); after each attempt that
 task, the correction source gives a correction, and the next attempt is conditioned on every
 earlier (trajectory, correction) pair, up to ``num_corrections`` corrections. All tasks of the batch
 advance together, so each environment step costs one batched policy forward for the batch; an
-expert, when given, labels every visited state in-process. A task whose env, expert or correction
-source raises is dropped (``TaskFailure``) and the others go on.
+expert, when given, labels every visited state in-process (with one call a step for an expert
+that has ``label_batch``, ``gpl_dist.roles.BatchExpert``: the same labels, bit for bit, as one
+env at a time). A task whose env, expert or correction source raises is dropped
+(``TaskFailure``) and the others go on.
 
 Everything is a function of the seed: reset seeds ``derive_seed(seed, task, k)``, one action
 sampling stream per batch named by its tasks (independent of which process runs it), correction
@@ -19,7 +21,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Union
+from typing import Any, Union, cast
 
 import numpy as np
 import torch
@@ -27,7 +29,7 @@ import torch
 from gpl_dist.models.gpl import Conditioning, PolicyNetwork
 from gpl_dist.models.mivoa import PreviousStep
 from gpl_dist.records import Attempt, Correction
-from gpl_dist.roles import CorrectionOracle, DomainSpec, Expert, trajectory_times
+from gpl_dist.roles import BatchExpert, CorrectionOracle, DomainSpec, Expert, trajectory_times
 from gpl_dist.seeding import derive_rng, derive_seed
 
 log = logging.getLogger(__name__)
@@ -199,9 +201,11 @@ class Rollout:
         """Step the active tasks' envs in lockstep for one attempt; fills ``buffers`` in place and
         returns each env's last info and its summed reward.
 
-        The hot loop: one batched policy forward per step, then per env one expert label and one
-        env step. Per-env work stays in plain Python lists (numpy scalar indexing costs more than
-        the env step's own bookkeeping); each step's observations are stacked once into the
+        The hot loop: one batched policy forward per step; then, for an expert that labels many
+        envs at once (``BatchExpert``), one ``label_batch`` call over the live envs, written into
+        the attempt's buffers as a block (otherwise one ``label``/``act`` per env); then one env
+        step per env. Per-env work stays in plain Python lists (numpy scalar indexing costs more
+        than the env step's own bookkeeping); each step's observations are stacked once into the
         attempt's buffer, which the next forward reads as a view.
         """
         with torch.inference_mode():
@@ -212,6 +216,9 @@ class Rollout:
         envs = [batch.envs[i] for i in active]
         alive = [not batch.failed[i] for i in active]
         expert, soft = self.expert, buffers.probs is not None
+        batched = soft and isinstance(expert, BatchExpert)
+        per_env_labels = expert is not None and not batched
+        live = [j for j in range(m) if alive[j]]  # rebuilt when a task fails
         last_obs = list(buffers.obs[:, 0])  # the reset observations
         infos: list[dict] = [{}] * m
         returns = [0.0] * m  # each attempt's summed reward (GPR's feedback)
@@ -223,28 +230,66 @@ class Rollout:
                 logits = self.policy.action_logits(torch.from_numpy(buffers.obs[:, t]), z, self._previous(buffers, t))
             actions = sample_actions(logits, action_rng, self.greedy)
             buffers.actions[:, t] = actions
+            if batched and self._label_block(batch, active, envs, live, buffers, t):
+                alive = [not batch.failed[i] for i in active]
+                live = [j for j in range(m) if alive[j]]
+            step_failed = False
             for j, a in enumerate(actions.tolist()):
                 if not alive[j]:
                     continue
                 env = envs[j]
                 try:
-                    if soft:
+                    if soft and not batched:
                         labels[j], probs[j] = expert.label(env)  # type: ignore[union-attr]
-                    elif expert is not None:
-                        labels[j] = expert.act(env)
+                    elif per_env_labels:
+                        labels[j] = expert.act(env)  # type: ignore[union-attr]
                     last_obs[j], reward, _, _, infos[j] = env.step(a)
                     returns[j] += float(reward)
                 except Exception as err:  # noqa: BLE001 - one broken task must not end the batch
                     alive[j] = False
+                    step_failed = True
                     labels[j], probs[j] = -1, zero_probs
+                    if batched:  # labelled before the step raised: unlabel, as the per-env path does
+                        buffers.labels[j, t] = -1
+                        buffers.probs[j, t] = 0.0  # type: ignore[index]
                     batch.fail(int(active[j]), "step/expert", err)
-            if expert is not None:
+            if step_failed:
+                live = [j for j in range(m) if alive[j]]
+            if per_env_labels:
                 buffers.labels[:, t] = labels
                 if soft:
                     np.stack(probs, out=buffers.probs[:, t])  # type: ignore[index]
             if t + 1 < steps:
                 np.stack(last_obs, out=buffers.obs[:, t + 1])
         return infos, returns
+
+    def _label_block(self, batch: _Batch, active: np.ndarray, envs: list[Any], live: list[int],
+                     buffers: _AttemptBuffers, t: int) -> bool:
+        """Label step ``t`` of the ``live`` envs with one ``label_batch`` call into the buffers
+        (rows of dead envs stay unlabelled: -1, zero probabilities). When the call raises, each
+        env is labelled alone to find the tasks at fault, which fail; returns whether any did."""
+        expert = cast(BatchExpert, self.expert)  # checked once per attempt by the caller
+        if not live:
+            return False
+        everyone = len(live) == len(envs)
+        try:
+            actions, probs = expert.label_batch(envs if everyone else [envs[j] for j in live])
+        except Exception:  # noqa: BLE001 - find the task(s) at fault, one env at a time
+            failed = False
+            for j in live:
+                try:
+                    a, p = expert.label_batch([envs[j]])
+                except Exception as err:  # noqa: BLE001
+                    batch.fail(int(active[j]), "step/expert", err)
+                    failed = True
+                    continue
+                buffers.labels[j, t], buffers.probs[j, t] = a[0], p[0]  # type: ignore[index]
+            return failed
+        if everyone:
+            buffers.labels[:, t], buffers.probs[:, t] = actions, probs  # type: ignore[index]
+        else:
+            buffers.labels[live, t], buffers.probs[live, t] = actions, probs  # type: ignore[index]
+        return False
 
     def _previous(self, buffers: _AttemptBuffers, t: int) -> PreviousStep | None:
         """The step before ``t`` for a policy that reads it (``PreviousStep``), else None."""

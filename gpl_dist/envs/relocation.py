@@ -366,6 +366,8 @@ class RelocationEnv(gymnasium.Env):
         self._bq = BLOCK_QPOS[self.task.block]
         self._dense = self.reward_mode == "dense"
         self.data.mocap_pos[0, :2] = self.task.target
+        # views into self.data's arrays (reading data.qpos builds a new view each time, on every step)
+        self._qpos, self._qvel, self._ctrl = self.data.qpos, self.data.qvel, self.data.ctrl
 
     def _reset_state(self, gripper_pose: np.ndarray, gripper_vel: np.ndarray) -> None:
         d = self.data
@@ -446,14 +448,13 @@ class RelocationEnv(gymnasium.Env):
     def step(self, action):
         if not 0 <= action < 4:
             raise ValueError(f"action must be in 0..3, got {action!r}")
-        d = self.data
         cx, cy = _ACTION_CTRL[action]
-        ctrl = d.ctrl
+        ctrl = self._ctrl
         ctrl[0] = cx
         ctrl[1] = cy
-        mujoco.mj_step(self.model, d)
+        mujoco.mj_step(self.model, self.data)
         self.steps += 1
-        q = d.qpos
+        q = self._qpos
         bq = self._bq
         bx = q[bq]
         by = q[bq + 1]
@@ -474,7 +475,7 @@ class RelocationEnv(gymnasium.Env):
             self._trail.append(self._trail_point())
         obs = self._obs
         obs[0:9] = q
-        obs[19:28] = d.qvel
+        obs[19:28] = self._qvel
         return obs.copy(), reward, False, self.steps >= EPISODE_STEPS, self._info(dist)
 
     def render(self):
@@ -492,7 +493,7 @@ class RelocationEnv(gymnasium.Env):
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
-        for key in ("model", "data", "_obs"):
+        for key in ("model", "data", "_obs", "_qpos", "_qvel", "_ctrl"):
             state.pop(key, None)
         d = self.data
         state["_mj"] = {"qpos": d.qpos.copy(), "qvel": d.qvel.copy(), "ctrl": d.ctrl.copy(),

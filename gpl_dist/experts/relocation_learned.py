@@ -20,13 +20,19 @@ The packaged weights are those after 600 PPO iterations; ``research/relocation_e
 --expert learned`` measures their completion (``docs/history.md`` has the figures).
 
 Labels: ``label(env)`` is ``(argmax action, softmax distribution)``, float32 ``(4,)``; the
-learner fits the distribution, as the authors fitted their PPO experts'. Stateless and
-deterministic: the same state gives the same label. Weights live in
-``gpl_dist/assets/relocation_learned_expert.npz`` (plain arrays, loaded without pickle).
+learner fits the distribution, as the authors fitted their PPO experts'. ``label_batch(envs)``
+labels many envs with one forward (the rollout loop's path: one batch-1 forward per env and step
+was half of a relocation collection's time). Stateless and deterministic: the same state gives
+the same label, bit for bit, whichever batch it is labelled in and by either method (both run
+``batch_probs``, which pads every batch to a multiple of ``ROW_BLOCK`` rows: OpenBLAS computes
+the rows of a matrix product's last partial block of rows with other kernels, whose sums differ
+in the last bits). Weights live in ``gpl_dist/assets/relocation_learned_expert.npz`` (plain
+arrays, loaded without pickle).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from importlib import resources
 from typing import Any
@@ -40,6 +46,9 @@ WEIGHTS = "relocation_learned_expert.npz"
 NORM_KEYS = ("norm_mean", "norm_var", "norm_weight", "norm_bias")
 NUM_LAYERS = 4
 NORM_EPS = 1e-5
+#: ``batch_probs`` runs its matrix products on a multiple of this many rows (see the module
+#: docstring): a multiple of the row blocks of OpenBLAS's double-precision kernels (4 to 16)
+ROW_BLOCK = 16
 
 
 @lru_cache(maxsize=None)
@@ -69,8 +78,32 @@ def policy_inputs(env: Any) -> np.ndarray:
     return x
 
 
+def policy_inputs_batch(envs: Sequence[Any]) -> np.ndarray:
+    """``(n, 33)`` float64: ``policy_inputs`` of each env, row by row (the same values)."""
+    es = [getattr(env, "unwrapped", env) for env in envs]
+    x = np.zeros((len(es), 33))
+    x[:, 0:9] = [e.data.qpos for e in es]
+    x[:, 9:19] = FIXED_XY.reshape(-1)
+    x[:, 19:28] = [e.data.qvel for e in es]
+    x[:, 28:30] = [e.task.target for e in es]
+    x[np.arange(len(es)), [30 + e.task.block for e in es]] = 1.0
+    return x
+
+
+def batch_probs(weights: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:
+    """``action_probs`` of ``x`` ``(n, 33)``, each row the same bits whatever ``n`` and its place
+    in the batch: the products run on ``x`` padded with zero rows to a multiple of ``ROW_BLOCK``
+    (``tests/test_relocation_learned_expert.py`` checks the invariance on this machine's BLAS)."""
+    n = x.shape[0]
+    padded = -(-max(n, 1) // ROW_BLOCK) * ROW_BLOCK
+    if padded != n:
+        x = np.concatenate([x, np.zeros((padded - n, x.shape[1]))])
+    return action_probs(weights, x)[:n]
+
+
 def action_probs(weights: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:
-    """Softmax of the network's logits for inputs ``x`` ``(..., 33)``."""
+    """Softmax of the network's logits for inputs ``x`` ``(..., 33)`` (the last bits depend on
+    the batch's shape; ``batch_probs`` does not)."""
     h = (x - weights["norm_mean"]) / np.sqrt(weights["norm_var"] + NORM_EPS) * weights["norm_weight"] + weights["norm_bias"]
     for i in range(NUM_LAYERS):
         h = h @ weights[f"w{i}"].T + weights[f"b{i}"]
@@ -82,16 +115,21 @@ def action_probs(weights: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:
 
 
 class LearnedRelocationExpert:
-    """``act(env)`` / ``label(env)`` from the packaged network (see the module docstring)."""
+    """``act(env)`` / ``label(env)`` / ``label_batch(envs)`` from the packaged network (see the
+    module docstring); a ``gpl_dist.roles.BatchExpert``."""
 
     soft_labels = True
 
     def __init__(self):
         self._weights = load_weights()
 
+    def label_batch(self, envs: Sequence[Any]) -> tuple[np.ndarray, np.ndarray]:
+        probs = batch_probs(self._weights, policy_inputs_batch(envs))
+        return probs.argmax(axis=1).astype(np.int64), probs.astype(np.float32)
+
     def label(self, env: Any) -> tuple[int, np.ndarray]:
-        probs = action_probs(self._weights, policy_inputs(env))
-        return int(np.argmax(probs)), probs.astype(np.float32)
+        actions, probs = self.label_batch([env])
+        return int(actions[0]), probs[0]
 
     def act(self, env: Any) -> int:
         return self.label(env)[0]
