@@ -159,7 +159,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
                     fingerprints[job.pretrained] = "not trained"
             return fingerprints[job.pretrained]
         rl_left = [j for j in jobs if not is_current(args.out, j, rl_plan.settings(j.domain), start(j))]
-    cost = predict(suite, args.out, states, tuple(rl_left))
+    cost = predict(suite, args.out, states, tuple(rl_left), measured_in=args.costs_from)
     predicted = {c.run.run_dir: c for c in cost.runs}
     for run, line in lines:
         c = predicted.get(run.run_dir)
@@ -173,6 +173,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     bound = "" if cost.complete else "at least "
     print(f"predicted: {todo} run(s) and {cost.rl_jobs} RL job(s) left, {bound}{hours(cost.total_seconds)} on this machine "
           f"(RL {hours(cost.rl_seconds)}), from this suite's finished work"
+          + (f" under {args.costs_from}" if args.costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
     return 0
@@ -382,7 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("suite", help="run the paper's experiments (a suite file) and report them")
     suite_sub = p.add_subparsers(dest="suite_command", required=True)
     for name, func, text in (("run", cmd_suite_run, "train and evaluate every unfinished run; resumes a killed suite"),
-                             ("status", cmd_suite_status, "each run's state, read from its files")):
+                             ("status", cmd_suite_status, "each run's state, read from its files, and the predicted "
+                                                          "wall time of what is left")):
         q = suite_sub.add_parser(name, help=text)
         q.add_argument("suite", help="suite file (e.g. configs/suites/paper.yaml)")
         q.add_argument("--out", required=True, help="the suite's folder of run dirs (OUT/<entry>/seed<k>)")
@@ -392,6 +394,9 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--address", help="a Ray cluster: run the entries at once, each as a Ray task")
             q.add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
             q.add_argument("--no-progress", action="store_true", help="no progress bars")
+        else:
+            q.add_argument("--costs-from", help="predict from the finished runs and RL results of this suite folder "
+                                                "(default: --out's own)")
         q.set_defaults(func=func)
     q = suite_sub.add_parser("rl", help="RL per test task (stable-baselines3 PPO) against GPL and GPR: the suite's rl section")
     q.add_argument("suite", help="suite file with an 'rl' section (e.g. configs/suites/paper.yaml)")

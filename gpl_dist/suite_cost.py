@@ -116,13 +116,16 @@ def _lookup(table: dict, keys: tuple) -> tuple[float | None, str]:
     return None, "none"
 
 
-def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tuple = ()) -> SuiteCost:
+def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tuple = (),
+            measured_in: str | Path | None = None) -> SuiteCost:
     """The cost of every run of ``suite`` under ``out`` whose state (``states[run_dir]``, as
     ``gpl_dist.suite.run_state`` or ``running`` gives it) is not ``done``, and of the RL jobs
-    ``rl_left`` (``learner.rl.RLJob``s not done)."""
+    ``rl_left`` (``learner.rl.RLJob``s not done), from the work finished under ``measured_in``
+    (``out`` itself by default; another suite's output predicts a new one from its costs)."""
     from learner.checkpoint import rounds_trained
 
-    per_round, per_eval, commits = measured(suite, out)
+    source_dir = out if measured_in is None else measured_in
+    per_round, per_eval, commits = measured(suite, source_dir)
     order = {"entry": 0, "domain": 1, "none": 2}
     costs = []
     for run in plan(suite, out):
@@ -145,7 +148,7 @@ def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tup
                 evals = None if seconds is None or evals is None else evals + seconds
                 sources.append(source)
         costs.append(RunCost(run, train, evals, max(sources, key=order.__getitem__)))
-    rl_seconds, rl_unknown = _rl_cost(out, rl_left, commits)
+    rl_seconds, rl_unknown = _rl_cost(source_dir, rl_left, commits)
     return SuiteCost(tuple(costs), rl_seconds, len(rl_left), rl_unknown, tuple(sorted(commits)))
 
 

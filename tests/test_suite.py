@@ -285,3 +285,36 @@ def test_the_committed_report_archive_is_not_ignored_by_git():
     path = "docs/paper-report/runs/multiroom-gpl/seed0/checkpoints/latest.pt"
     check = subprocess.run(["git", "check-ignore", "-v", path], cwd=REPO, capture_output=True, text=True)
     assert check.returncode == 1, f"git ignores {path}: {check.stdout.strip()}"
+
+
+def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path, capsys):
+    """A finished seed predicts the same entry's seeds left (per round, so a half-trained run pays
+    only its rounds left) and its evaluations; an entry of a domain with no finished run has no
+    estimate and the total says "at least"; another suite's folder predicts a new one."""
+    from gpl_dist.suite import read_record
+    from gpl_dist.suite_cost import predict
+
+    out = tmp_path / "out"
+    done = write_suite(tmp_path / "a.yaml", {"gpl": entry()})
+    run_suite(load_suite(done), out, serial=True, progress=False)
+    record = read_record(out / "gpl" / "seed0")
+    took = record["train_seconds"] + record["evaluations"]["test"]["seconds"]
+    more = write_suite(tmp_path / "b.yaml", {"gpl": entry(seeds=(0, 1, 2))})
+    suite = load_suite(more)
+    states = {r.run_dir: run_state(r, suite) for r in plan(suite, out)}
+    cost = predict(suite, out, states)
+    assert [c.run.seed for c in cost.runs] == [1, 2] and cost.complete
+    assert all(c.source == "entry" and c.seconds == pytest.approx(took) for c in cost.runs)
+    assert cost.total_seconds == pytest.approx(2 * took)
+    assert main(["suite", "status", str(more), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "predicted: 2 run(s) and 0 RL job(s) left" in printed and "at least" not in printed
+    # a domain without a finished run: no estimate, and the total is a lower bound
+    other = write_suite(tmp_path / "c.yaml", {"gpl": entry(seeds=(0, 1)),
+                                             "reloc": {**entry(), "base": str(REPO / "configs" / "relocation.yaml")}})
+    assert main(["suite", "status", str(other), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "new      reloc seed 0" in printed and "~?" in printed and "at least" in printed
+    # a fresh folder, predicted from the finished one
+    fresh = predict(suite, tmp_path / "fresh", {}, measured_in=out)
+    assert len(fresh.runs) == 3 and fresh.total_seconds == pytest.approx(3 * took)
