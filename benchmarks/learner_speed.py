@@ -202,7 +202,8 @@ def bench_domain(domain: str, args) -> None:
     from learner.cpu import matmul_gflops, native_bf16
 
     flops = step_flops(cfg, tv)
-    used = learners * (t.num_threads or max(1, threads // learners))  # threads the learner uses in all
+    # threads the learner computes on in all: each process's torch threads, and its conditioning thread
+    used = learners * ((t.num_threads or max(1, threads // learners)) + int(t.conditioning_thread))
     peaks = {"fp32": matmul_gflops(used, torch.float32)}
     if native_bf16():
         peaks["bf16"] = matmul_gflops(used, torch.bfloat16)
