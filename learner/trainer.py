@@ -184,6 +184,8 @@ class Learner:
         self._builder: ThreadPoolExecutor | None = None  # builds the next batches (``_prefetched``)
         # the conditioning branch of each step (``_two_branch_step``), when asked for
         self._branches: ThreadPoolExecutor | None = self._thread("gpl-branch") if cfg.conditioning_thread else None
+        #: the parameters of the head, where ``_two_branch_step`` cuts the graph (found once, not per step)
+        self._head_params = [p for p in getattr(self.model, "head", nn.Sequential()).parameters() if p.requires_grad]
 
     def _thread(self, name: str) -> ThreadPoolExecutor:
         """A helper thread of this learner whose ops run on as many intra-op threads as its own
@@ -215,7 +217,7 @@ class Learner:
             group["fused"], group["foreach"] = True, None
 
     def close(self) -> None:
-        """Stop the batch-building thread (``learner.parallel.DataParallelLearner`` also stops its processes)."""
+        """Stop the helper threads (``learner.parallel.DataParallelLearner`` also stops its processes)."""
         for pool in (self._builder, self._branches):
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -395,7 +397,7 @@ class Learner:
         self.flat_grads.zero_()
         # the gradients at the cut as the head's backward makes them (a .grad would be re-laid out
         # as a contiguous copy, and a BatchNorm's backward sums a strided gradient in another order)
-        head = [p for p in model.head.parameters() if p.requires_grad]
+        head = self._head_params
         cut = [t for t in (states_in, z_in) if t.requires_grad]
         grads = torch.autograd.grad(loss * share if share != 1.0 else loss, cut + head)
         for p, g in zip(head, grads[len(cut):]):
