@@ -75,6 +75,10 @@ class BufferConfig:
     """Buffer root (local path or fsspec URL); empty puts it at RUN_DIR/buffer."""
 
 
+#: ``ModelConfig.encoder_activation``'s values (``gpl_dist.models.gpl.ACTIVATIONS`` maps them to modules).
+ENCODER_ACTIVATIONS = ("relu", "leaky_relu")
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """The ``model`` section: the variant and the architecture's switches."""
@@ -97,6 +101,8 @@ class ModelConfig:
     """LayerNorm before each hidden ReLU of GPL's instruction, correction, trajectory and pair MLPs (narrow layers die whole)."""
     correction_width: int = 0
     """Output width of GPL's correction encoder (0: the domain's appendix value, 4 in multi-room; the authors' code: 32)."""
+    encoder_activation: str = "relu"
+    """Activation of GPL's conditioning encoders (convolutions and MLPs): relu (the paper's) or leaky_relu (no dead zone)."""
 
 
 @dataclass(frozen=True)
@@ -317,6 +323,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         _one_of("training.device", cfg.training.device, _DEVICES),
         _one_of("training.engine", cfg.training.engine, ENGINES),
         _one_of("eval.phrasings", cfg.eval.phrasings, PHRASINGS),
+        _one_of("model.encoder_activation", cfg.model.encoder_activation, ENCODER_ACTIVATIONS),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),
         (cfg.collection.num_workers >= 1, "collection.num_workers must be at least 1"),
         (0 <= cfg.collection.num_corrections <= MAX_CORRECTIONS,

@@ -17,7 +17,11 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from gpl_dist.models.gpl import GPLPolicy
+from gpl_dist.models.gpl import ACTIVATIONS, GPLPolicy
+
+#: The activation modules whose units are counted: a unit is dead when it is never positive (for
+#: LeakyReLU, one that only passes its small negative slope).
+ACTIVATION_MODULES = tuple(ACTIVATIONS.values())
 
 #: The conditioning encoders of ``gpl_dist.models.gpl.GPLPolicy`` that are checked, in this order.
 ENCODERS = ("instruction", "correction", "trajectory", "pair")
@@ -77,7 +81,8 @@ def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
     output_layer: dict[str, int] = {}  # the index of the ReLU that is the encoder's last layer, if one is
     hooks = []
     for name, mod in encoders:
-        relus = [m for m in mod.modules() if isinstance(m, nn.ReLU)]
+        relus = [m for m in mod.modules()
+                 if isinstance(m, ACTIVATION_MODULES) and m is not getattr(mod, "conv_activation", None)]
         for i, relu in enumerate(relus):
             if relu is _last_layer(mod):
                 output_layer[name] = i

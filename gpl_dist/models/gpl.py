@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from gpl_dist.config import ENCODER_ACTIVATIONS
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec
 
@@ -77,11 +78,19 @@ class Conditioning:
                             maybe(self.instruction_values), maybe(self.correction_values))
 
 
+#: The activations of GPL's conditioning encoders (``ModelConfig.encoder_activation``): name -> module
+#: class. LeakyReLU (slope 0.01) has no dead zone: under Adam, whose steps do not shrink with the
+#: gradient, a unit that is never positive still moves back.
+ACTIVATIONS: dict[str, type[nn.Module]] = dict(zip(ENCODER_ACTIVATIONS, (nn.ReLU, nn.LeakyReLU), strict=True))
+
+
 def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
-        batchnorm: bool = False, hidden_layernorm: bool = False) -> tuple[nn.Sequential, int]:
-    """Linear layers of ``sizes``, ReLU between them (and after the last with ``final_activation``);
-    ``batchnorm`` puts a BatchNorm1d after every linear layer, ``hidden_layernorm`` a LayerNorm after
-    every hidden one (per sample: it holds for a batch of one attempt row as in training)."""
+        batchnorm: bool = False, hidden_layernorm: bool = False,
+        activation: str = "relu") -> tuple[nn.Sequential, int]:
+    """Linear layers of ``sizes``, ``activation`` (one of ``ACTIVATIONS``) between them (and after
+    the last with ``final_activation``); ``batchnorm`` puts a BatchNorm1d after every linear layer,
+    ``hidden_layernorm`` a LayerNorm after every hidden one (per sample: it holds for a batch of one
+    attempt row as in training)."""
     layers: list[nn.Module] = []
     d = in_dim
     for i, h in enumerate(sizes):
@@ -91,7 +100,7 @@ def mlp(sizes: tuple[int, ...], in_dim: int, final_activation: bool = True,
         elif hidden_layernorm and i < len(sizes) - 1:
             layers.append(nn.LayerNorm(h))
         if final_activation or i < len(sizes) - 1:
-            layers.append(nn.ReLU())
+            layers.append(ACTIVATIONS[activation]())
         d = h
     return nn.Sequential(*layers), d
 
@@ -231,7 +240,7 @@ class GridStateEncoder(nn.Module):
     """
 
     def __init__(self, obs_shape: tuple[int, ...], categories: tuple[int, ...], channels: tuple[int, ...],
-                 mlp_sizes: tuple[int, ...], batchnorm: bool = False):
+                 mlp_sizes: tuple[int, ...], batchnorm: bool = False, mlp_activation: str = "relu"):
         super().__init__()
         h, w, c = obs_shape
         if len(categories) != c:
@@ -258,7 +267,7 @@ class GridStateEncoder(nn.Module):
         self.convs = nn.ModuleList(Conv2x2(a, b) for a, b in zip(widths[:-1], widths[1:]))
         self.norms = nn.ModuleList(nn.BatchNorm1d(ch) for ch in channels) if batchnorm else None
         h, w = h - len(channels), w - len(channels)
-        self.mlp, self.out_dim = mlp(mlp_sizes, channels[-1] * h * w)
+        self.mlp, self.out_dim = mlp(mlp_sizes, channels[-1] * h * w, activation=mlp_activation)
 
     def group_tables(self) -> torch.Tensor:
         """``(R, 4 * out)``: the first layer's projection of every code combination of every
@@ -310,15 +319,16 @@ class TextEncoder(nn.Module):
     """Token ids ``(B, L)`` -> vector: shared embeddings, 1-D CNN (kernel 2), MLP."""
 
     def __init__(self, embedding: nn.Embedding, max_tokens: int, conv: int, mlp_sizes: tuple[int, ...],
-                 final_activation: bool = True, hidden_layernorm: bool = False):
+                 final_activation: bool = True, hidden_layernorm: bool = False, activation: str = "relu"):
         super().__init__()
         self.embedding = embedding
         self.conv = nn.Conv1d(embedding.embedding_dim, conv, kernel_size=2)
+        self.conv_activation = ACTIVATIONS[activation]()
         self.mlp, self.out_dim = mlp(mlp_sizes, conv * (max_tokens - 1), final_activation,
-                                     hidden_layernorm=hidden_layernorm)
+                                     hidden_layernorm=hidden_layernorm, activation=activation)
 
     def forward(self, ids: torch.Tensor) -> torch.Tensor:
-        x = torch.relu(conv1d_k2_channels_last(self.conv, self.embedding(ids)))  # (B, L-1, conv)
+        x = self.conv_activation(conv1d_k2_channels_last(self.conv, self.embedding(ids)))  # (B, L-1, conv)
         return self.mlp(x.transpose(1, 2).flatten(1))  # channel-major, as Conv1d's output
 
 
@@ -326,9 +336,10 @@ class ValueEncoder(nn.Module):
     """float32 ``(B, F)`` numbers -> vector: an MLP (numeric full information)."""
 
     def __init__(self, width: int, mlp_sizes: tuple[int, ...], final_activation: bool = True,
-                 hidden_layernorm: bool = False):
+                 hidden_layernorm: bool = False, activation: str = "relu"):
         super().__init__()
-        self.mlp, self.out_dim = mlp(mlp_sizes, width, final_activation, hidden_layernorm=hidden_layernorm)
+        self.mlp, self.out_dim = mlp(mlp_sizes, width, final_activation, hidden_layernorm=hidden_layernorm,
+                                     activation=activation)
 
     def forward(self, values: torch.Tensor) -> torch.Tensor:
         return self.mlp(values.float())
@@ -338,25 +349,26 @@ class TrajectoryEncoder(nn.Module):
     """Subsampled trajectory ``(B, S, *O)`` -> vector: per-state encoder, 1-D CNN over time, MLP."""
 
     def __init__(self, domain: DomainSpec, sizes: Sizes, final_activation: bool = True, conv_batchnorm: bool = False,
-                 hidden_layernorm: bool = False):
+                 hidden_layernorm: bool = False, activation: str = "relu"):
         super().__init__()
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.traj_state_channels,
-                                                     sizes.traj_state_mlp, conv_batchnorm)
+                                                     sizes.traj_state_mlp, conv_batchnorm, activation)
         else:
             self.state = VectorStateEncoder(domain.obs_shape)
         steps = domain.trajectory_samples
         self.conv = nn.Conv1d(self.state.out_dim, sizes.traj_conv, kernel_size=min(2, steps))
+        self.conv_activation = ACTIVATIONS[activation]()
         self.mlp, self.out_dim = mlp(sizes.traj_mlp, sizes.traj_conv * (steps - min(2, steps) + 1), final_activation,
-                                     hidden_layernorm=hidden_layernorm)
+                                     hidden_layernorm=hidden_layernorm, activation=activation)
 
     def forward(self, traj: torch.Tensor) -> torch.Tensor:
         b, s = traj.shape[:2]
         x = self.state(traj.reshape(b * s, *traj.shape[2:])).reshape(b, s, -1)
         if self.conv.kernel_size[0] == 2:
-            x = torch.relu(conv1d_k2_channels_last(self.conv, x)).transpose(1, 2)
+            x = self.conv_activation(conv1d_k2_channels_last(self.conv, x)).transpose(1, 2)
         else:  # a one-sample trajectory
-            x = torch.relu(self.conv(x.transpose(1, 2)))
+            x = self.conv_activation(self.conv(x.transpose(1, 2)))
         return self.mlp(x.flatten(1))
 
 
@@ -365,8 +377,10 @@ class GPLPolicy(nn.Module):
 
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
                  policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
-                 conv_batchnorm: bool = False, encoder_layernorm: bool = False, correction_width: int = 0):
+                 conv_batchnorm: bool = False, encoder_layernorm: bool = False, correction_width: int = 0,
+                 encoder_activation: str = "relu"):
         super().__init__()
+        act = encoder_activation
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
         self.variant = variant
@@ -381,18 +395,19 @@ class GPLPolicy(nn.Module):
         if self.numeric_full_information:
             width = len(domain.full_information_values(0))  # type: ignore[misc]
             self.instruction: TextEncoder | ValueEncoder = ValueEncoder(width, sizes.instruction_mlp, relu_out,
-                                                                        encoder_layernorm)
+                                                                        encoder_layernorm, act)
         else:
             self.instruction = TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.instruction_mlp,
-                                           relu_out, encoder_layernorm)
+                                           relu_out, encoder_layernorm, act)
         # GPR: the summed reward of each earlier attempt, in place of its correction
         self.correction: TextEncoder | ValueEncoder = (
-            ValueEncoder(1, sizes.correction_mlp, relu_out, encoder_layernorm) if variant == "gpr"
+            ValueEncoder(1, sizes.correction_mlp, relu_out, encoder_layernorm, act) if variant == "gpr"
             else TextEncoder(self.embedding, vocab.max_tokens, sizes.text_conv, sizes.correction_mlp, relu_out,
-                             encoder_layernorm))
-        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out, conv_batchnorm, encoder_layernorm)
+                             encoder_layernorm, act))
+        self.trajectory = TrajectoryEncoder(domain, sizes, relu_out, conv_batchnorm, encoder_layernorm, act)
         self.pair, pair_dim = mlp(sizes.pair_mlp, self.trajectory.out_dim + self.correction.out_dim,
-                                  final_activation=sizes.pair_final_relu and relu_out, hidden_layernorm=encoder_layernorm)
+                                  final_activation=sizes.pair_final_relu and relu_out, hidden_layernorm=encoder_layernorm,
+                                  activation=act)
         if len(domain.obs_shape) == 3:
             self.state: nn.Module = GridStateEncoder(domain.obs_shape, _categories(domain), sizes.state_channels,
                                                      sizes.state_mlp, conv_batchnorm)
@@ -476,7 +491,8 @@ PolicyNetwork = Union["GPLPolicy", "MIVOAPolicy"]
 def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16, seed: int | None = None,
                 policy_batchnorm: bool = False, paraphrases: bool = False,
                 linear_encodings: bool = False, conv_batchnorm: bool = False,
-                encoder_layernorm: bool = False, correction_width: int = 0) -> "PolicyNetwork":
+                encoder_layernorm: bool = False, correction_width: int = 0,
+                encoder_activation: str = "relu") -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
@@ -488,7 +504,7 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
         if variant in MIVOA_VARIANTS:
             return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
         return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm,
-                         encoder_layernorm, correction_width)
+                         encoder_layernorm, correction_width, encoder_activation)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -503,7 +519,8 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
     return build_model(domain, model_cfg.variant, model_cfg.embedding_dim, seed=seed,
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
                        linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm,
-                       encoder_layernorm=model_cfg.encoder_layernorm, correction_width=model_cfg.correction_width)
+                       encoder_layernorm=model_cfg.encoder_layernorm, correction_width=model_cfg.correction_width,
+                       encoder_activation=model_cfg.encoder_activation)
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:
