@@ -57,7 +57,7 @@ def shipped_model(domain: str):
     """``(ModelConfig, network)``: the network that ``configs/<domain>.yaml`` ships, freshly
     initialised (seed 0), so the rollouts run the forward a real run runs."""
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
 
     model_cfg = shipped_config(domain).model
     return model_cfg, build_model_from_config(get_domain(domain), model_cfg, seed=0)
@@ -92,7 +92,7 @@ def bare_env_two_processes(seconds: float, domain: str = "multiroom") -> float:
 def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, tasks_per_unit: int,
                   domain: str = "multiroom") -> tuple[float, int]:
     from gpl_dist.config import CollectionConfig, config_from_dict
-    from gpl_dist.models.gpl import state_dict_to_numpy
+    from gpl_dist.models.build import state_dict_to_numpy
     from learner.driver import make_units
     from storage import commit_round
     from workers.ray_pool import RayCollector
@@ -156,7 +156,7 @@ def naive_rate(tasks: tuple[int, ...], corrections: int, domain: str = "multiroo
     from gpl_dist.corrections import make_corrector
     from gpl_dist.domains import get_domain
     from gpl_dist.experts import make_expert
-    from gpl_dist.models.gpl import Conditioning
+    from gpl_dist.models.layers import Conditioning
     from gpl_dist.roles import trajectory_times
 
     d = get_domain(domain)

@@ -50,7 +50,7 @@ def load_cfg(domain: str, overrides: dict[str, str]):
 def fill_buffer(cfg, root: str, num_tuples: int, tasks_per_unit: int = 64) -> None:
     """Commit one round of at least ``num_tuples`` real labelled tuples at ``root``."""
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config, state_dict_to_numpy
+    from gpl_dist.models.build import build_model_from_config, state_dict_to_numpy
     from gpl_dist.records import WorkUnit
     from gpl_dist.splits import split_tasks
     from storage import ShardWriter, commit_round
@@ -75,7 +75,7 @@ def per_state_batch(tv, idx):
     own copies of its attempt's earlier (trajectory, correction) pairs (nothing shared in a batch)."""
     import torch
 
-    from gpl_dist.models.gpl import Conditioning
+    from gpl_dist.models.layers import Conditioning
 
     rows = tv.attempt_rows[idx]
     ctx = tv.context_rows[rows]  # (B, K)
@@ -92,7 +92,7 @@ def plain_loop(cfg, tv, max_steps: int) -> tuple[float, int]:
     import torch
 
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
     from learner.trainer import resolve_device
 
     device = resolve_device(cfg.training.device)
@@ -121,7 +121,7 @@ def gpl_dist_learner(cfg, tv, epochs: int) -> tuple[float, int, int]:
     import dataclasses
 
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
     from learner.parallel import make_learner, resolve_num_learners
 
     tcfg = dataclasses.replace(cfg.training, num_epochs_per_round=epochs)
@@ -143,7 +143,7 @@ def step_flops(cfg, tv, num_batches: int = 8) -> float:
     from torch.utils.flop_counter import FlopCounterMode
 
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
     from learner.trainer import Learner
 
     tcfg = dataclasses.replace(cfg.training, num_learners=1)

@@ -114,7 +114,8 @@ def _names(text: str | None) -> tuple[str, ...]:
 
 def cmd_suite_run(args: argparse.Namespace) -> int:
     """``gpl-dist suite run``: train and evaluate every unfinished run of a suite (resumable)."""
-    from gpl_dist.suite import load_suite, run_suite
+    from gpl_dist.app.suite.runner import run_suite
+    from gpl_dist.app.suite.spec import load_suite
 
     if args.serial and args.address:
         raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
@@ -128,9 +129,10 @@ def cmd_suite_run(args: argparse.Namespace) -> int:
 def cmd_suite_status(args: argparse.Namespace) -> int:
     """``gpl-dist suite status``: each run's state (done, evaluate, resume, new, or running with
     its driver), read from its files, and the predicted wall time of what is left
-    (``gpl_dist.suite_cost``)."""
-    from gpl_dist.suite import load_suite, plan, run_state
-    from gpl_dist.suite_cost import hours, predict
+    (``gpl_dist.app.suite.cost``)."""
+    from gpl_dist.app.suite.cost import hours, predict
+    from gpl_dist.app.suite.runs import run_state
+    from gpl_dist.app.suite.spec import load_suite, plan
     from storage.lease import lease_holder
 
     suite = load_suite(args.suite)
@@ -143,7 +145,8 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
     if suite.rl is not None:
-        from gpl_dist.suite_rl import NotTrainedYet, attempts_current, attempts_jobs, is_current, rl_jobs, trained_fingerprint
+        from gpl_dist.app.suite.rl_jobs import NotTrainedYet, attempts_current, is_current, trained_fingerprint
+        from gpl_dist.app.suite.rl_plan import attempts_jobs, rl_jobs
 
         rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
 
@@ -181,8 +184,8 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
 
 def cmd_suite_rl(args: argparse.Namespace) -> int:
     """``gpl-dist suite rl``: RL per test task against GPL and GPR (the suite file's ``rl`` section)."""
-    from gpl_dist.suite import keep_copy, load_suite
-    from gpl_dist.suite_rl import run_rl_plan
+    from gpl_dist.app.suite.rl_jobs import run_rl_plan
+    from gpl_dist.app.suite.spec import keep_copy, load_suite
 
     if args.serial and args.address:
         raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
@@ -197,7 +200,7 @@ def cmd_suite_rl(args: argparse.Namespace) -> int:
 
 def cmd_suite_report(args: argparse.Namespace) -> int:
     """``gpl-dist suite report``: the paper's tables from a suite's eval files, as Markdown and HTML."""
-    from gpl_dist.suite_report import write_report
+    from gpl_dist.app.suite.report import write_report
 
     md, html = write_report(args.suite_out, args.out)
     print(f"wrote {md} and {html}")
@@ -206,7 +209,7 @@ def cmd_suite_report(args: argparse.Namespace) -> int:
 
 def cmd_suite_restore(args: argparse.Namespace) -> int:
     """``gpl-dist suite restore``: copy a report's archived runs into a suite output that lacks them."""
-    from gpl_dist.suite_archive import restore_runs
+    from gpl_dist.app.suite.archive import restore_runs
 
     restored = restore_runs(args.archive, args.out)
     print(f"restored {len(restored)} run(s) into {args.out}" + "".join(f"\n  {p}" for p in restored))
@@ -216,7 +219,7 @@ def cmd_suite_restore(args: argparse.Namespace) -> int:
 def cmd_render(args: argparse.Namespace) -> int:
     """``gpl-dist render``: a task's start state as PNG, an attempt as GIF, or a trained policy's
     successive attempts with the corrections between them (``--run-dir``)."""
-    from gpl_dist.rendering import attempt_frames, parse_actions, policy_attempt_frames, write_picture
+    from gpl_dist.app.rendering import attempt_frames, parse_actions, policy_attempt_frames, write_picture
 
     if args.seed < 0:
         raise UsageError(f"--seed must be >= 0, got {args.seed}")
@@ -237,15 +240,15 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def _teacher(args: argparse.Namespace):
-    from gpl_dist.teaching import Teacher
+    from gpl_dist.app.teaching import Teacher
 
     return Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy)
 
 
 def cmd_teach(args: argparse.Namespace) -> int:
     """``gpl-dist teach``: correct a trained policy by typing, attempt after attempt."""
+    from gpl_dist.app.teach_terminal import teach_in_terminal
     from gpl_dist.splits import split_tasks
-    from gpl_dist.teach_terminal import teach_in_terminal
 
     if args.task is not None and args.instruction is not None:
         raise UsageError("give --task or --instruction, not both")
@@ -260,7 +263,7 @@ def cmd_teach(args: argparse.Namespace) -> int:
 
 def cmd_serve(args: argparse.Namespace) -> int:
     """``gpl-dist serve``: the teaching loop in a web page."""
-    from gpl_dist.teach_web import serve
+    from gpl_dist.app.teach_web import serve
 
     teacher = _teacher(args)
     out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"

@@ -75,7 +75,7 @@ class BufferConfig:
     """Buffer root (local path or fsspec URL); empty puts it at RUN_DIR/buffer."""
 
 
-#: ``ModelConfig.encoder_activation``'s values (``gpl_dist.models.gpl.ACTIVATIONS`` maps them to modules).
+#: ``ModelConfig.encoder_activation``'s values (``gpl_dist.models.layers.ACTIVATIONS`` maps them to modules).
 ENCODER_ACTIVATIONS = ("relu", "leaky_relu")
 
 

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Sequence
+
 import numpy as np
+
+from gpl_dist.records import Attempt
 
 
 def completion_by_corrections(task_ids: np.ndarray, attempt_index: np.ndarray, completion: np.ndarray,
@@ -23,3 +27,9 @@ def completion_by_corrections(task_ids: np.ndarray, attempt_index: np.ndarray, c
         missing = np.isnan(table[:, col])
         table[missing, col] = table[missing, col - 1]
     return np.nan_to_num(table).mean(axis=0)
+
+
+def completion_by_attempt(attempts: Sequence[Attempt], max_attempts: int) -> np.ndarray:
+    """Mean completion after 0..max_attempts-1 corrections over the tasks in ``attempts``."""
+    return completion_by_corrections(np.array([a.task_id for a in attempts]), np.array([a.attempt_index for a in attempts]),
+                                     np.array([a.completion for a in attempts]), max_attempts)

@@ -8,6 +8,7 @@ states in an attempt, ``L`` the vocabulary's ``max_tokens``, ``O`` the domain's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -112,3 +113,19 @@ class WorkUnit:
     split: str
     seed: int
     policy_version: int
+
+
+@dataclass(frozen=True)
+class LearnerState:
+    """Everything a learner's future training depends on, as ``gpl_dist.roles.Learner.state``
+    gives it and ``load_state`` takes it (checkpoints, resume, a learner that trains elsewhere).
+
+    Attributes:
+        model: the model's state dict (tensors).
+        optimizer: the Adam state dict, or None before the first step.
+        generator: the batch-order generator's state (``torch.Generator.get_state``).
+    """
+
+    model: Mapping[str, Any]
+    optimizer: Mapping[str, Any] | None
+    generator: Any

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Protocol, Sequence, ru
 import numpy as np
 
 from gpl_dist.language import Paraphrases, Vocabulary
-from gpl_dist.records import Attempt, Correction, WorkUnit
+from gpl_dist.records import Attempt, Correction, LearnerState, WorkUnit
 
 if TYPE_CHECKING:
     import gymnasium
@@ -68,7 +68,7 @@ class DomainSpec:
             ``full_information`` variant then reads them through an MLP in place of the
             full-information text. None: the full information is the oracle's text.
         correction_phrasings: ``f()`` -> every sentence the oracle's text kinds can say; a person's
-            correction is checked against them (``gpl_dist.teaching``: the closest known phrasing).
+            correction is checked against them (``gpl_dist.app.teaching``: the closest known phrasing).
             None: the vocabulary alone is known.
         paraphrases: other phrasings of the instructions and corrections (``language.Paraphrases``),
             for training with paraphrases (``model.paraphrases``) and meta-testing with held-out
@@ -282,6 +282,14 @@ class Learner(Protocol):
 
     def weights(self) -> dict[str, np.ndarray]:
         """The current weights as numpy arrays (what workers load)."""
+        ...
+
+    def state(self) -> LearnerState:
+        """Model, optimiser and batch-generator state (what a checkpoint keeps)."""
+        ...
+
+    def load_state(self, state: LearnerState) -> None:
+        """Continue from ``state`` (as ``state`` gave it); raises on weights of another architecture."""
         ...
 
     def close(self) -> None:

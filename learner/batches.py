@@ -14,7 +14,7 @@ from typing import Callable
 import numpy as np
 import torch
 
-from gpl_dist.models.gpl import Conditioning
+from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
 
 

@@ -18,6 +18,8 @@ import numpy as np
 import torch
 
 from gpl_dist.errors import CheckpointError
+from gpl_dist.records import LearnerState
+from gpl_dist.roles import Learner as LearnerRole
 
 LATEST = "latest.pt"
 
@@ -45,21 +47,22 @@ class Checkpoint:
     history: list
 
 
-def capture_rng(generator: torch.Generator) -> dict:
-    """The torch, numpy and batch-generator RNG states, as tensors and plain values."""
+def capture_rng(generator_state: torch.Tensor) -> dict:
+    """The torch and numpy global RNG states and the batch generator's (``LearnerState.generator``),
+    as tensors and plain values."""
     np_state: tuple = np.random.get_state(legacy=True)  # type: ignore[assignment]  # legacy=True is the tuple form
     return {
         "torch": torch.get_rng_state(),
-        "generator": generator.get_state(),
+        "generator": generator_state,
         "numpy": {"key": torch.from_numpy(np_state[1].astype(np.int64)), "pos": int(np_state[2]),
                   "has_gauss": int(np_state[3]), "cached_gaussian": float(np_state[4])},
     }
 
 
-def restore_rng(state: dict, generator: torch.Generator) -> None:
-    """Restore what ``capture_rng`` captured."""
+def restore_rng(state: dict) -> None:
+    """Restore the global RNG states ``capture_rng`` captured (the batch generator's goes back
+    with the learner's state: ``load_learner_state``)."""
     torch.set_rng_state(state["torch"])
-    generator.set_state(state["generator"])
     n = state["numpy"]
     np.random.set_state(("MT19937", n["key"].numpy().astype(np.uint32), n["pos"], n["has_gauss"], n["cached_gaussian"]))
 
@@ -113,6 +116,21 @@ def rounds_trained(run_dir: str | os.PathLike) -> int:
     """How many DAgger rounds a run has trained: its latest checkpoint's round + 1, 0 without one."""
     latest = Path(run_dir) / "checkpoints" / LATEST
     return load_checkpoint(latest).round_index + 1 if latest.is_file() else 0
+
+
+def learner_state(ckpt: Checkpoint) -> LearnerState:
+    """The learner's state that ``ckpt`` holds (an empty optimizer state: none yet)."""
+    optimizer = ckpt.optimizer_state if ckpt.optimizer_state and ckpt.optimizer_state.get("param_groups") else None
+    return LearnerState(ckpt.model_state, optimizer, ckpt.rng_state["generator"])
+
+
+def load_learner_state(learner: LearnerRole, ckpt: Checkpoint, source: str | os.PathLike) -> None:
+    """Continue ``learner`` from ``ckpt``; ``CheckpointError`` when its weights belong to another architecture."""
+    try:
+        learner.load_state(learner_state(ckpt))
+    except (RuntimeError, KeyError, TypeError) as err:
+        first = str(err).strip().splitlines()[0][:200]
+        raise CheckpointError(f"{source} does not fit this run's model (another variant or size?): {first}") from None
 
 
 def load_model_state(model: torch.nn.Module, ckpt: Checkpoint, source: str | os.PathLike) -> None:

@@ -30,11 +30,11 @@ from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 from gpl_dist.metrics import completion_by_corrections
-from gpl_dist.models.gpl import build_model_from_config
+from gpl_dist.models.build import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_model_state, restore_rng, save_checkpoint
+from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_learner_state, restore_rng, save_checkpoint
 from learner.health import EncoderHealth, format_health
 from learner.parallel import make_learner
 from learner.trainer import resolve_device
@@ -293,12 +293,12 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
         learner = _make_learner(cfg, model, on_ray=not serial)
         start_round, history = 0, []
         if ckpt is not None:
-            load_model_state(learner.model, ckpt, run_dir / "checkpoints" / LATEST)
-            learner.load_optimizer_state(ckpt.optimizer_state)
-            restore_rng(ckpt.rng_state, learner.generator)
+            load_learner_state(learner, ckpt, run_dir / "checkpoints" / LATEST)
+            restore_rng(ckpt.rng_state)
             start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
             log.info("resuming %s at round %d", run_dir, start_round)
-        return _train_rounds(cfg, run_dir, root, tasks, learner, collector, start_round, history, progress)
+        return _train_rounds(cfg, run_dir, root, tasks, learner, model.uses_corrections, collector, start_round, history,
+                             progress)
     finally:
         if learner is not None:
             learner.close()
@@ -324,7 +324,8 @@ def _make_learner(cfg: RunConfig, model, on_ray: bool):
     return make_learner(model, cfg.training, seed=cfg.seed)
 
 
-def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], learner, collector,
+def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], learner, uses_corrections: bool,
+                  collector,
                   start_round: int, history: list[RoundMetrics], progress: bool) -> TrainingResult:
     domain = get_domain(cfg.env.domain)
     ckpt_dir = run_dir / "checkpoints"
@@ -332,14 +333,16 @@ def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ..
     try:
         save_config(cfg, run_dir / "config.yaml")
         mark_buffer(root, run_dir.name)
-        round_loop = _RoundLoop(cfg, domain, tasks, learner, collector, root, _Progress(progress))
+        round_loop = _RoundLoop(cfg, domain, tasks, learner, uses_corrections, collector, root,
+                                _Progress(progress))
         tb = _tensorboard(run_dir)
         for r in range(start_round, cfg.training.num_rounds):
             metrics = round_loop.run(r)
             history.append(metrics)
+            state = learner.state()
             save_checkpoint(ckpt_dir, Checkpoint(
-                round_index=r, policy_version=r + 1, model_state=learner.model.state_dict(),
-                optimizer_state=learner.optimizer.state_dict(), rng_state=capture_rng(learner.generator),
+                round_index=r, policy_version=r + 1, model_state=dict(state.model),
+                optimizer_state=dict(state.optimizer or {}), rng_state=capture_rng(state.generator),
                 config=config_to_dict(cfg), history=[m.to_dict() for m in history]))
             _log_round(run_dir, tb, metrics)
     finally:
@@ -361,12 +364,12 @@ class _RoundLoop:
     """One DAgger round: collect with the current weights (unless committed before a restart),
     commit, load the training view, train."""
 
-    def __init__(self, cfg: RunConfig, domain, tasks: tuple[int, ...], learner, collector, root: str,
-                 bars: "_Progress"):
+    def __init__(self, cfg: RunConfig, domain, tasks: tuple[int, ...], learner, uses_corrections: bool, collector,
+                 root: str, bars: "_Progress"):
         self.cfg, self.domain, self.tasks, self.learner = cfg, domain, tasks, learner
         self.collector, self.root, self.bars = collector, root, bars
         self.reader = BufferReader(root)
-        self.max_attempts = cfg.collection.num_corrections + 1 if learner.model.uses_corrections else 1
+        self.max_attempts = cfg.collection.num_corrections + 1 if uses_corrections else 1
 
     def run(self, r: int) -> RoundMetrics:
         t0 = time.perf_counter()

@@ -28,12 +28,13 @@ from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.language import PHRASINGS
-from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, PolicyNetwork, build_model_from_config
-from gpl_dist.seeding import derive_seed
+from gpl_dist.metrics import completion_by_attempt
+from gpl_dist.models.build import PolicyNetwork, build_model_from_config
+from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
+from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import LATEST, load_checkpoint, load_model_state
 from workers.loop import Rollout
-from workers.rollout import completion_by_attempt
 
 
 @dataclass(frozen=True)
@@ -147,7 +148,7 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
         for seed in seeds:
             attempts: list = []
             for s in range(0, len(tasks), chunk):
-                attempts += rollout.run(tasks[s:s + chunk], num_corrections, derive_seed(seed, 0xE7A1), split=split,
+                attempts += rollout.run(tasks[s:s + chunk], num_corrections, evaluation_seed(seed), split=split,
                                         policy_version=0).attempts
             curves.append(completion_by_attempt(attempts, max_attempts))
             successes.append(_success_by_attempt(attempts, max_attempts))

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from gpl_dist.models.gpl import ACTIVATIONS, GPLPolicy
+from gpl_dist.models.gpl import GPLPolicy
+from gpl_dist.models.layers import ACTIVATIONS
 
 #: The activation modules whose units are counted: a unit is dead when it is never positive (for
 #: LeakyReLU, one that only passes its small negative slope).

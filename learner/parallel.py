@@ -40,6 +40,7 @@ from torch import nn
 
 from gpl_dist.config import TrainingConfig
 from gpl_dist.errors import UserError
+from gpl_dist.records import LearnerState
 from learner.batches import TensorView
 from learner.trainer import Learner, RoundStats, available_cpus, resolve_device
 
@@ -150,14 +151,16 @@ class DataParallelLearner:
             raise
         self.num_learners = num_learners
 
-    # what the driver reads of rank 0 (checkpoints, weights, resume)
+    #: rank 0's model (read it; its state goes through ``state`` / ``load_state``)
     model = property(lambda self: self._local.model)
-    optimizer = property(lambda self: self._local.optimizer)
-    generator = property(lambda self: self._local.generator)
     cfg = property(lambda self: self._local.cfg)
 
-    def load_optimizer_state(self, state: dict) -> None:
-        self._local.load_optimizer_state(state)  # the helpers receive it at the next round's start
+    def state(self) -> LearnerState:
+        """Rank 0's state: every rank holds the same after a round."""
+        return self._local.state()
+
+    def load_state(self, state: LearnerState) -> None:
+        self._local.load_state(state)  # the helpers receive it at the next round's start
 
     def weights(self) -> dict:
         return self._local.weights()

@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from gpl_dist.config import ConfigError, TrainingConfig
+from gpl_dist.records import LearnerState
 
 DRIVER, GPU_ACTOR = "driver", "gpu-actor"
 #: how long the driver waits for the learner's actor to be placed on a GPU
@@ -60,17 +61,14 @@ def _cpu(value):
     return value
 
 
-def train_from_state(learner, state: tuple[dict, dict | None, torch.Tensor], view):
-    """Train one round on ``learner`` from the driver's ``state`` (model, Adam, batch generator);
-    return the round's statistics and the new state, on the CPU. A round depends only on its
-    inputs, so retrying it after a failure is safe."""
-    model_state, optimizer_state, generator_state = state
-    learner.model.load_state_dict(model_state)
-    if optimizer_state is not None:
-        learner.load_optimizer_state(optimizer_state)
-    learner.generator.set_state(generator_state)
+def train_from_state(learner, state: LearnerState, view) -> tuple[Any, LearnerState]:
+    """Train one round on ``learner`` from the driver's ``state``; return the round's statistics
+    and the new state, on the CPU. A round depends only on its inputs, so retrying it after a
+    failure is safe."""
+    learner.load_state(state)
     stats = learner.train_round(view)
-    return stats, (_cpu(learner.model.state_dict()), _cpu(learner.optimizer.state_dict()), learner.generator.get_state())
+    new = learner.state()
+    return stats, LearnerState(_cpu(dict(new.model)), _cpu(dict(new.optimizer or {})) or None, new.generator.clone())
 
 
 class LearnerActorImpl:
@@ -81,27 +79,16 @@ class LearnerActorImpl:
 
         self.learner = make_learner(model, cfg, seed)
 
-    def train_round(self, state: tuple[dict, dict | None, torch.Tensor], view):
+    def train_round(self, state: LearnerState, view):
         return train_from_state(self.learner, state, view)
 
     def device(self) -> str:
         return str(next(self.learner.model.parameters()).device)
 
 
-class _OptimizerState:
-    """Stands in for the optimizer where the driver reads it (checkpoints)."""
-
-    def __init__(self) -> None:
-        self.state: dict | None = None
-
-    def state_dict(self) -> dict:
-        return self.state if self.state is not None else {"state": {}, "param_groups": []}
-
-
 class ShippedStateLearner:
     """A learner that trains elsewhere from state the driver holds; implements
-    ``gpl_dist.roles.Learner`` and exposes ``model``, ``optimizer`` and ``generator`` as
-    ``learner.trainer.Learner`` does.
+    ``gpl_dist.roles.Learner`` (its ``state`` / ``load_state`` are the replica's).
 
     The driver keeps a CPU replica of the model, the Adam state and the batch generator's state;
     every round ``_train_elsewhere`` sends them with the training view and returns the new ones.
@@ -112,26 +99,28 @@ class ShippedStateLearner:
     def __init__(self, model: nn.Module, cfg: TrainingConfig, seed: int = 0):
         self.model = model
         self.cfg = cfg
-        self.optimizer = _OptimizerState()
-        self.generator = torch.Generator().manual_seed(seed)
+        self._optimizer: dict | None = None
+        self._generator = torch.Generator().manual_seed(seed)
 
-    def _train_elsewhere(self, state: tuple[dict, dict | None, torch.Tensor], view):
+    def _train_elsewhere(self, state: LearnerState, view):
         """``train_from_state`` run wherever this learner trains; returns its result."""
         raise NotImplementedError
 
-    def load_optimizer_state(self, state: dict) -> None:
-        self.optimizer.state = state
+    def state(self) -> LearnerState:
+        return LearnerState(self.model.state_dict(), self._optimizer, self._generator.get_state())
+
+    def load_state(self, state: LearnerState) -> None:
+        self.model.load_state_dict(dict(state.model))
+        self._optimizer = None if state.optimizer is None else dict(state.optimizer)
+        self._generator.set_state(state.generator)
 
     def weights(self) -> dict:
-        from gpl_dist.models.gpl import state_dict_to_numpy
+        from gpl_dist.models.build import state_dict_to_numpy
         return state_dict_to_numpy(self.model)
 
     def train_round(self, view, on_epoch=None):
-        state = (self.model.state_dict(), self.optimizer.state, self.generator.get_state())
-        stats, (model_state, optimizer_state, generator_state) = self._train_elsewhere(state, view)
-        self.model.load_state_dict(model_state)
-        self.optimizer.state = optimizer_state
-        self.generator.set_state(generator_state)
+        stats, new = self._train_elsewhere(self.state(), view)
+        self.load_state(new)
         if on_epoch is not None:
             on_epoch(self.cfg.num_epochs_per_round - 1, stats.loss, stats.accuracy)
         return stats

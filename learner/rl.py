@@ -36,9 +36,11 @@ from torch import nn
 from gpl_dist.config import ModelConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
-from gpl_dist.models.gpl import Conditioning, GPLPolicy, build_model_from_config
+from gpl_dist.models.build import build_model_from_config
+from gpl_dist.models.gpl import GPLPolicy
+from gpl_dist.models.layers import Conditioning
 from gpl_dist.roles import DomainSpec
-from gpl_dist.seeding import derive_seed
+from gpl_dist.seeding import rl_seed
 
 #: The RL methods: PPO from a fresh network, and PPO from a DAgger-pretrained instruction-only one.
 RL_METHODS = ("rl-scratch", "rl-finetune")
@@ -298,7 +300,7 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
         raise UsageError(f"RL job {job.key}: task outside 0..{domain.num_tasks - 1} or no trajectories")
     if settings.n_envs < 1 or settings.n_steps < 0:
         raise UsageError(f"PPO settings: n_envs must be >= 1 and n_steps >= 0 (got {settings.n_envs}, {settings.n_steps})")
-    seed = derive_seed(job.seed, job.task_id, 0x5B3) % 2**32  # SB3 seeds numpy's legacy generator too
+    seed = rl_seed(job.seed, job.task_id)
     torch.manual_seed(seed)
     network = task_network(domain, weights, seed, model)
     completion: list[float] = []

@@ -42,8 +42,10 @@ from torch import nn
 
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import ConfigError, TrainingConfig
-from gpl_dist.models.gpl import Conditioning, GPLPolicy
+from gpl_dist.models.gpl import GPLPolicy
+from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
+from gpl_dist.records import LearnerState
 from learner.batches import TensorView
 from learner.health import PROBE_STATES, EncoderHealth, encoder_health
 
@@ -216,6 +218,18 @@ class Learner:
         for group in self.optimizer.param_groups:
             group["fused"], group["foreach"] = True, None
 
+    def state(self) -> LearnerState:
+        """Model, Adam and batch-generator state (``gpl_dist.roles.Learner``); the tensors are this
+        learner's own: copy them before training on if they must stay as they are."""
+        return LearnerState(self.model.state_dict(), self.optimizer.state_dict(), self.generator.get_state())
+
+    def load_state(self, state: LearnerState) -> None:
+        """Continue from ``state``; the model's ``load_state_dict`` raises on another architecture."""
+        self.model.load_state_dict(dict(state.model))
+        if state.optimizer is not None:
+            self.load_optimizer_state(dict(state.optimizer))
+        self.generator.set_state(state.generator)
+
     def close(self) -> None:
         """Stop the helper threads (``learner.parallel.DataParallelLearner`` also stops its processes)."""
         for pool in (self._builder, self._branches):
@@ -224,7 +238,7 @@ class Learner:
         self._builder = self._branches = None
 
     def weights(self) -> dict:
-        from gpl_dist.models.gpl import state_dict_to_numpy
+        from gpl_dist.models.build import state_dict_to_numpy
         return state_dict_to_numpy(self.model)
 
     def train_round(self, view, on_epoch: Callable[[int, float, float], None] | None = None) -> RoundStats:

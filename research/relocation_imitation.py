@@ -29,9 +29,9 @@ import argparse
 import numpy as np
 import torch
 
-from gpl_dist.envs.relocation import BLOCK_QPOS, make_task
-from gpl_dist.experts.relocation_training import TEST_SEED, DaggerSettings, expert_on, privileged_dagger
+from gpl_dist.envs.relocation_core import BLOCK_QPOS, make_task
 from gpl_dist.splits import split_tasks
+from learner.relocation_expert_training import TEST_SEED, DaggerSettings, expert_on, privileged_dagger
 
 
 def report_expert(task_ids) -> None:
@@ -52,7 +52,7 @@ def failure_modes(args) -> None:
     from gpl_dist.config import config_from_dict
     from gpl_dist.corrections import make_corrector
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
     from learner.checkpoint import load_checkpoint
     from workers.loop import Rollout
 

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from gpl_dist.envs.relocation import EPISODE_STEPS, NUM_TASKS
+from gpl_dist.envs.relocation_core import EPISODE_STEPS, NUM_TASKS
 from gpl_dist.splits import split_tasks
 from learner.rl import CompletionRecorder
 

@@ -32,7 +32,7 @@ import torch
 from gpl_dist.cli import parse_overrides
 from gpl_dist.config import ConfigError, config_to_dict, load_config, save_config
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model_from_config
+from gpl_dist.models.build import build_model_from_config
 from learner.checkpoint import Checkpoint, capture_rng, load_checkpoint, save_checkpoint
 from learner.driver import buffer_root
 from learner.evaluate import evaluate_policy, format_table
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         save_config(cfg, out / "config.yaml")
         save_checkpoint(out / "checkpoints", Checkpoint(
             round_index=0, policy_version=1, model_state=learner.model.state_dict(),
-            optimizer_state=learner.optimizer.state_dict(), rng_state=capture_rng(learner.generator),
+            optimizer_state=learner.optimizer.state_dict(), rng_state=capture_rng(learner.generator.get_state()),
             config=config_to_dict(cfg), history=[]), keep_round_copy=False)
         print(f"saved {out}/checkpoints/latest.pt")
     return 0

@@ -1,6 +1,6 @@
 """Train the learned relocation expert (``gpl_dist/experts/relocation_learned.py``) and export it.
 
-Two steps (``gpl_dist.experts.relocation_training`` has what each does), as committed
+Two steps (``learner.relocation_expert_training`` has what each does), as committed
 (``gpl_dist/assets/relocation_learned_expert.npz``):
 
     python scripts/train_relocation_expert.py dagger --rounds 14 --out runs/priv14.pt
@@ -24,7 +24,7 @@ import os
 
 import torch
 
-from gpl_dist.experts.relocation_training import (
+from learner.relocation_expert_training import (
     INPUT_DIM,
     DaggerSettings,
     PPOSettings,

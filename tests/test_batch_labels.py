@@ -25,7 +25,7 @@ from gpl_dist.experts.relocation_learned import (
     policy_inputs,
     policy_inputs_batch,
 )
-from gpl_dist.models.gpl import build_model_from_config
+from gpl_dist.models.build import build_model_from_config
 from gpl_dist.roles import BatchExpert, Expert
 from gpl_dist.splits import split_tasks
 from workers.loop import Rollout

@@ -35,7 +35,7 @@ def test_render_draws_a_trained_policys_attempts_with_the_corrections_between(tm
                  "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4",
                  "--set", "training.num_epochs_per_round=1"]) == 0
     captions = []
-    import gpl_dist.rendering as rendering
+    import gpl_dist.app.rendering as rendering
     draw = rendering._captioned
 
     def recording(frame, top, bottom, **kw):

@@ -26,7 +26,7 @@ def test_corrections_raise_completion_after_meta_training(tmp_path):
     })
     run_training(cfg, tmp_path / "run", serial=True, progress=False)
     from gpl_dist.domains import get_domain
-    from gpl_dist.models.gpl import build_model
+    from gpl_dist.models.build import build_model
     from learner.checkpoint import load_checkpoint
 
     model = build_model(get_domain("multiroom"))

@@ -3,7 +3,8 @@ import pytest
 import torch
 
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import Conditioning, build_model, load_numpy_state, state_dict_to_numpy
+from gpl_dist.models.build import build_model, load_numpy_state, state_dict_to_numpy
+from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
 
 VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
@@ -283,7 +284,7 @@ def _reference_grid_encoder(enc, obs):
 @pytest.mark.parametrize("channels", [(8, 8), (4, 4), (3,)])
 def test_grid_encoder_is_a_conv2d_over_one_hot_channels(channels):
     """The lookup-based first layer and the shifted-sum convolutions compute exactly Conv2d's function."""
-    from gpl_dist.models.gpl import GridStateEncoder
+    from gpl_dist.models.layers import GridStateEncoder
     d = get_domain("multiroom")
     torch.manual_seed(0)
     enc = GridStateEncoder(d.obs_shape, d.obs_categories, channels, (32,))
@@ -304,7 +305,7 @@ def test_first_conv_backward_is_bitwise_the_tap_by_tap_sum():
     """The first layer's table gradient, built from shifted windows of the padded output gradient,
     equals bit for bit the sum written tap by tap (each cell's gradient of every tap, zero where a
     tap feeds no output, added into its group's rows): the same numbers added in the same order."""
-    from gpl_dist.models.gpl import _TAPS, GridStateEncoder, _FirstConv2x2
+    from gpl_dist.models.layers import _TAPS, GridStateEncoder, _FirstConv2x2
     d = get_domain("multiroom")
     torch.manual_seed(0)
     enc = GridStateEncoder(d.obs_shape, d.obs_categories, (8, 8), (32,))
@@ -326,7 +327,7 @@ def test_first_conv_backward_is_bitwise_the_tap_by_tap_sum():
 def test_conv1d_channels_last_matches_conv1d():
     from torch import nn
 
-    from gpl_dist.models.gpl import conv1d_k2_channels_last
+    from gpl_dist.models.layers import conv1d_k2_channels_last
     torch.manual_seed(0)
     conv = nn.Conv1d(16, 4, kernel_size=2)
     x = torch.randn(9, 7, 16, requires_grad=True)
@@ -341,7 +342,7 @@ def test_conv1d_channels_last_matches_conv1d():
 
 
 def test_channel_groups_cover_every_channel_once_within_the_row_limit():
-    from gpl_dist.models.gpl import channel_groups
+    from gpl_dist.models.layers import channel_groups
     cats = (8, 7, 3, 7, 7, 2)
     groups = channel_groups(cats)
     assert [c for g in groups for c in g] == list(range(len(cats)))
@@ -419,7 +420,7 @@ def test_mivoa_reads_the_instruction_the_previous_state_and_the_previous_action(
 def test_relocation_full_information_reads_the_block_and_the_target_as_numbers():
     """The paper's relocation oracle gets which block to move and the goal's coordinates: numbers
     through an MLP, not words; other domains and variants keep text."""
-    from gpl_dist.envs.relocation import make_task
+    from gpl_dist.envs.relocation_core import make_task
 
     d = get_domain("relocation")
     task = make_task(7)
@@ -473,5 +474,35 @@ def test_correction_width_sets_the_correction_encoding_and_defaults_to_the_domai
     assert logits.shape == (7, d.num_actions) and torch.isfinite(logits).all()
     # a run's config reaches the model through the one mapping
     from gpl_dist.config import ModelConfig
-    from gpl_dist.models.gpl import build_model_from_config
+    from gpl_dist.models.build import build_model_from_config
     assert build_model_from_config(d, ModelConfig(variant=variant, correction_width=32)).correction.out_dim == 32
+
+
+def test_leaky_encoders_have_the_relu_networks_units_and_a_never_positive_unit_still_learns():
+    """``model.encoder_activation: leaky_relu``: the same parameters and counted units as ReLU; a
+    unit that is never positive counts as dead in the health line, yet its weights get a gradient
+    (ReLU's get none)."""
+    from gpl_dist.config import ConfigError, load_config
+    from learner.health import encoder_health
+
+    domain = get_domain("multiroom")
+    relu = build_model(domain, seed=0, linear_encodings=True)
+    leaky = build_model(domain, seed=0, linear_encodings=True, encoder_activation="leaky_relu")
+    assert {k: v.shape for k, v in relu.state_dict().items()} == {k: v.shape for k, v in leaky.state_dict().items()}
+    assert any(isinstance(m, torch.nn.LeakyReLU) for m in leaky.instruction.modules())
+    assert not any(isinstance(m, torch.nn.LeakyReLU) for m in leaky.state.modules())  # the policy's own encoder stays ReLU
+    cond = random_conditioning(domain, a=4, k=3)
+    grads = {}
+    for name, model in (("relu", relu), ("leaky", leaky)):
+        with torch.no_grad():
+            hidden = model.instruction.mlp[0]
+            hidden.weight.zero_()
+            hidden.bias.fill_(-1.0)  # every hidden unit of the instruction MLP is never positive
+        health = {h.encoder: h for h in encoder_health(model, cond)}
+        assert health["instruction"].constant and health["instruction"].dead_units >= 16
+        model.train()
+        model.encode_conditioning(cond).sum().backward()
+        grads[name] = float(model.instruction.mlp[0].weight.grad.abs().sum())
+    assert grads["relu"] == 0.0 and grads["leaky"] > 0.0
+    with pytest.raises(ConfigError, match="model.encoder_activation"):
+        load_config(None, {"model.encoder_activation": "tanh"})

@@ -9,7 +9,8 @@ import torch
 
 from gpl_dist.config import ConfigError, TrainingConfig, load_config
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.build import build_model, state_dict_to_numpy
+from gpl_dist.records import LearnerState
 from learner.batches import TensorView
 from learner.parallel import DataParallelLearner, LearnerFailed, make_learner, resolve_num_learners
 from learner.trainer import Learner, available_cpus, threads_per_learner
@@ -41,7 +42,7 @@ def test_two_learners_train_as_one_with_the_same_batch(tmp_path):
         s3 = two.train_round(tv)
         s4 = one.train_round(tv)
         assert abs(s3.loss - s4.loss) < 1e-3
-        assert two.optimizer.state_dict()["state"][0]["step"] == s1.num_steps * 2
+        assert two.state().optimizer["state"][0]["step"] == s1.num_steps * 2
     finally:
         two.close()
     assert all(not p.is_alive() for p in procs)
@@ -52,13 +53,12 @@ def test_a_resumed_optimizer_reaches_the_helpers(tmp_path):
     tv = TensorView.from_view(_view(tmp_path))
     first = Learner(build_model(get_domain("multiroom"), seed=1), _cfg(num_epochs_per_round=1))
     first.train_round(tv)
-    model_state, opt_state = first.model.state_dict(), first.optimizer.state_dict()
+    saved = first.state()
     resumed_one = Learner(build_model(get_domain("multiroom")), _cfg(num_epochs_per_round=1), seed=9)
     resumed_two = DataParallelLearner(build_model(get_domain("multiroom")), _cfg(num_epochs_per_round=1), 2, seed=9)
     try:
         for learner in (resumed_one, resumed_two):
-            learner.model.load_state_dict(model_state)
-            learner.load_optimizer_state(opt_state)
+            learner.load_state(LearnerState(saved.model, saved.optimizer, learner.state().generator))
             learner.train_round(tv)
         w1, w2 = state_dict_to_numpy(resumed_one.model), state_dict_to_numpy(resumed_two.model)
         for k in w1:
@@ -145,8 +145,8 @@ def test_a_learner_actor_trains_as_the_driver_would(tmp_path, ray_cluster):
         w1, w2 = local.weights(), remote.weights()
         for k in w1:
             np.testing.assert_allclose(w1[k], w2[k], rtol=1e-5, atol=1e-6, err_msg=k)
-        assert torch.equal(local.generator.get_state(), remote.generator.get_state())
-        assert remote.optimizer.state_dict()["state"][0]["step"] == local.optimizer.state_dict()["state"][0]["step"]
+        assert torch.equal(local.state().generator, remote.state().generator)
+        assert remote.state().optimizer["state"][0]["step"] == local.state().optimizer["state"][0]["step"]
     finally:
         remote.close()
 

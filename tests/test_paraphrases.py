@@ -9,7 +9,7 @@ from test_rollout import TASKS, worker_settings
 from gpl_dist.cli import main
 from gpl_dist.domains import get_domain
 from gpl_dist.language import split_words
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.build import build_model, state_dict_to_numpy
 from learner.evaluate import meta_test_rollout
 from workers.rollout import RolloutWorker
 

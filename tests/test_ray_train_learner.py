@@ -6,7 +6,7 @@ import pytest
 from gpl_dist import roles
 from gpl_dist.config import ConfigError, TrainingConfig, load_config
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.build import build_model, state_dict_to_numpy
 from learner.parallel import LearnerFailed
 from learner.trainer import Learner
 from tests.test_trainer import _view
@@ -36,7 +36,7 @@ def test_two_ray_train_learners_train_as_one_and_fail_in_one_line(ray_cluster, t
                 np.testing.assert_allclose(w1[k], w2[k], rtol=1e-3, atol=1e-4, err_msg=k)
             assert s2.num_states == s1.num_states and s2.num_steps == s1.num_steps
             assert abs(s2.loss - s1.loss) < 1e-3
-        assert group.optimizer.state_dict()["state"][0]["step"] == 2 * s1.num_steps
+        assert group.state().optimizer["state"][0]["step"] == 2 * s1.num_steps
         assert group.weights().keys() == one.weights().keys()
         with pytest.raises(LearnerFailed, match="Ray Train learners stopped .*no attribute 'observations'.*--resume"):
             group.train_round(object())  # not a view: every learner fails to read it

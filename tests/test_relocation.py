@@ -15,7 +15,8 @@ import gpl_dist.envs  # noqa: F401  (registers gpl/Relocation-v0)
 from gpl_dist.corrections import make_corrector
 from gpl_dist.corrections.relocation import make_relocation_corrector
 from gpl_dist.domains import get_domain
-from gpl_dist.envs.relocation import DOMAIN, FIXED_XY, MOVABLE_START, VOCABULARY, RelocationEnv, make_splits, make_task
+from gpl_dist.envs.relocation import DOMAIN, RelocationEnv
+from gpl_dist.envs.relocation_core import FIXED_XY, MOVABLE_START, VOCABULARY, make_splits, make_task
 from gpl_dist.experts import make_expert
 from gpl_dist.splits import load_splits, split_tasks
 
@@ -189,7 +190,7 @@ def test_relational_direction_hand_placed():
     env = RelocationEnv(tid)
     env.reset(seed=0)
     from gpl_dist.corrections.relocation import closer_text, relational_text
-    from gpl_dist.envs.relocation import FIXED_COLORS
+    from gpl_dist.envs.relocation_core import FIXED_COLORS
 
     assert relational_text(env, 0) == f"Move right of the {FIXED_COLORS[f]} block"
     b = t.block
@@ -212,7 +213,7 @@ def test_full_information_and_reward_texts():
     assert text.startswith(f"move {env.task.block_color} to x ")
     assert VOCABULARY.unk_id not in VOCABULARY.encode(text)
     assert len(text.split()) <= VOCABULARY.max_tokens
-    from gpl_dist.envs.relocation import spell_number
+    from gpl_dist.envs.relocation_core import spell_number
 
     assert spell_number(0.93) == "zero point nine three"
     assert spell_number(-0.41) == "minus zero point four one"

@@ -44,8 +44,8 @@ def test_packaged_weights_load_without_pickle_and_give_distributions():
 
 
 def test_export_round_trip_matches_the_torch_policy(tmp_path):
-    """``relocation_training.export`` writes what ``action_probs`` computes like torch."""
-    from gpl_dist.experts import relocation_training as script
+    """``relocation_expert_training.export`` writes what ``action_probs`` computes like torch."""
+    from learner import relocation_expert_training as script
     torch.manual_seed(0)
     policy = script.build_policy(33, 256)
     with torch.no_grad():
@@ -135,7 +135,7 @@ def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
     """Step 2 runs stable-baselines3's PPO: its policy starts as step 1's exactly, the input
     normalisation keeps step 1's statistics, the value layers alone train during the warm-up,
     and the policy moves after it."""
-    from gpl_dist.experts import relocation_training as script
+    from learner import relocation_expert_training as script
     torch.manual_seed(0)
     policy = script.build_policy(33, 32)
     with torch.no_grad():
@@ -162,7 +162,7 @@ def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_s
     third iteration moved the policy."""
     from dataclasses import replace
 
-    from gpl_dist.experts import relocation_training as script
+    from learner import relocation_expert_training as script
     torch.manual_seed(0)
     policy = script.build_policy(33, 32).eval()
     settings = script.PPOSettings(iterations=3, envs=2, warmup=1, eval_every=100, test_tasks=1, minibatch=175)
@@ -191,7 +191,7 @@ def test_the_ppo_stage_envs_hold_only_their_current_episodes_env():
     import gc
     import weakref
 
-    from gpl_dist.experts.relocation_training import PrivilegedTasks
+    from learner.relocation_expert_training import PrivilegedTasks
     tasks = PrivilegedTasks(split_tasks("relocation", "train")[:50], seed=0)
     tasks.reset()
     first = weakref.ref(tasks.env)

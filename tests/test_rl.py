@@ -9,11 +9,13 @@ import pytest
 import torch
 from test_suite import entry, write_suite
 
+from gpl_dist.app.suite.rl_jobs import load_results, run_rl_plan
+from gpl_dist.app.suite.rl_plan import rl_jobs
+from gpl_dist.app.suite.runner import run_suite
+from gpl_dist.app.suite.spec import load_suite
 from gpl_dist.cli import main
 from gpl_dist.config import ConfigError
-from gpl_dist.models.gpl import state_dict_to_numpy
-from gpl_dist.suite import load_suite, run_suite
-from gpl_dist.suite_rl import load_results, rl_jobs, run_rl_plan
+from gpl_dist.models.build import state_dict_to_numpy
 from learner.evaluate import load_trained_policy
 from learner.rl import (
     CompletionRecorder,
@@ -235,7 +237,8 @@ def test_curves_are_read_at_log_spaced_points():
 
 
 def test_the_table_reads_every_named_column_of_a_long_curve(tmp_path):
-    from gpl_dist.suite_rl import sample_complexity_section, write_result
+    from gpl_dist.app.suite.rl_jobs import write_result
+    from gpl_dist.app.suite.rl_report import sample_complexity_section
     from learner.rl import RLCurve
 
     ramp = tuple(min(1.0, i / 1000) for i in range(2000))  # completion rises to 1 by trajectory 1000
@@ -252,7 +255,9 @@ def test_the_report_reads_only_the_results_of_the_suites_rl_plan(tmp_path):
     """Results of an older task list, budget or PPO settings stay on disk but out of the medians."""
     import dataclasses
 
-    from gpl_dist.suite_rl import parse_rl_plan, plan_of_copy, sample_complexity_section, write_result
+    from gpl_dist.app.suite.rl_jobs import plan_of_copy, write_result
+    from gpl_dist.app.suite.rl_plan import parse_rl_plan
+    from gpl_dist.app.suite.rl_report import sample_complexity_section
     from learner.rl import RLCurve
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ())
@@ -287,7 +292,8 @@ def test_a_changed_budget_or_task_list_makes_a_written_result_stale(tmp_path):
     are compared with the plan, so changing either runs the job again instead of counting it done."""
     import dataclasses
 
-    from gpl_dist.suite_rl import AttemptsJob, attempts_current, is_current, parse_rl_plan, write_result
+    from gpl_dist.app.suite.rl_jobs import attempts_current, is_current, write_result
+    from gpl_dist.app.suite.rl_plan import AttemptsJob, parse_rl_plan
     from learner.rl import RLCurve
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ("gpl",))
@@ -307,7 +313,9 @@ def test_rl_reaches_gpl_against_gpls_median_on_the_same_tasks_and_missing_jobs_a
     """With RL on 2 of 3 tasks, the bar is GPL's median on those 2 (0.30), not on all 3 (0.40)."""
     import dataclasses
 
-    from gpl_dist.suite_rl import parse_rl_plan, sample_complexity_section, write_result
+    from gpl_dist.app.suite.rl_jobs import write_result
+    from gpl_dist.app.suite.rl_plan import parse_rl_plan
+    from gpl_dist.app.suite.rl_report import sample_complexity_section
     from learner.rl import RLCurve
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2, 3]}, "seeds": [0], "trajectories": 40,

@@ -10,7 +10,7 @@ from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
 from gpl_dist.experts import make_expert
 from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
-from gpl_dist.models.gpl import build_model
+from gpl_dist.models.build import build_model
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter
 from workers.pool import SerialCollector

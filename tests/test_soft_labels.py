@@ -10,7 +10,7 @@ import torch
 from gpl_dist.config import TrainingConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.experts import make_expert
-from gpl_dist.models.gpl import build_model
+from gpl_dist.models.build import build_model
 from learner.batches import TensorView
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter, commit_round, load_manifest

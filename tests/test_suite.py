@@ -14,10 +14,12 @@ from pathlib import Path
 
 import pytest
 
+from gpl_dist.app.suite.report import PAPER_TABLES, collect_results
+from gpl_dist.app.suite.runner import run_suite
+from gpl_dist.app.suite.runs import run_state
+from gpl_dist.app.suite.spec import load_suite, plan
 from gpl_dist.cli import main
 from gpl_dist.config import ConfigError
-from gpl_dist.suite import load_suite, plan, run_state, run_suite
-from gpl_dist.suite_report import PAPER_TABLES, collect_results
 from tests.test_safety import _one_line_error
 
 REPO = Path(__file__).resolve().parent.parent
@@ -219,7 +221,7 @@ def test_held_out_phrasings_are_an_evaluation_and_older_records_still_count(tmp_
 
 
 def test_the_effort_table_says_when_a_run_was_evaluated_before_effort_was_recorded(tmp_path):
-    from gpl_dist.suite_report import RunResult, effort_markdown
+    from gpl_dist.app.suite.report import RunResult, effort_markdown
 
     def result(entry, effort):
         return RunResult(entry, 0, tmp_path, "test", (0.1, 0.5), tmp_path / "eval.json", (), ("abc",), 1.0, 1.0, effort)
@@ -291,8 +293,8 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
     """A finished seed predicts the same entry's seeds left (per round, so a half-trained run pays
     only its rounds left) and its evaluations; an entry of a domain with no finished run has no
     estimate and the total says "at least"; another suite's folder predicts a new one."""
-    from gpl_dist.suite import read_record
-    from gpl_dist.suite_cost import predict
+    from gpl_dist.app.suite.cost import predict
+    from gpl_dist.app.suite.runs import read_record
 
     out = tmp_path / "out"
     done = write_suite(tmp_path / "a.yaml", {"gpl": entry()})

@@ -13,16 +13,16 @@ import pyarrow.dataset as pads
 import pytest
 from _cluster_tools import GPL_DIST, free_ports, quiet_env
 
-from gpl_dist.cli import main
-from gpl_dist.domains import get_domain
-from gpl_dist.language import split_words
-from gpl_dist.teaching import (
+from gpl_dist.app.teaching import (
     MAX_TEXT_CHARS,
     Teacher,
     TeachingError,
     check_correction,
     write_episode_log,
 )
+from gpl_dist.cli import main
+from gpl_dist.domains import get_domain
+from gpl_dist.language import split_words
 from learner.evaluate import load_trained_policy, meta_test_rollout
 
 TASK = 263  # a multi-room test task
@@ -199,7 +199,7 @@ def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
 def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(teacher, tmp_path):
     from fastapi.testclient import TestClient
 
-    from gpl_dist.teach_web import create_app
+    from gpl_dist.app.teach_web import create_app
 
     client = TestClient(create_app(teacher, tmp_path), base_url="http://127.0.0.1")
     rebound = TestClient(create_app(teacher, tmp_path), base_url="http://attacker.example")

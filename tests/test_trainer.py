@@ -11,7 +11,7 @@ from torch import nn
 
 from gpl_dist.config import TrainingConfig
 from gpl_dist.domains import get_domain
-from gpl_dist.models.gpl import build_model, state_dict_to_numpy
+from gpl_dist.models.build import build_model, state_dict_to_numpy
 from gpl_dist.records import WorkUnit
 from learner.batches import TensorView
 from learner.trainer import Learner

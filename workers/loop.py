@@ -11,9 +11,9 @@ that has ``label_batch``, ``gpl_dist.roles.BatchExpert``: the same labels, bit f
 env at a time). A task whose env, expert or correction source raises is dropped
 (``TaskFailure``) and the others go on.
 
-Everything is a function of the seed: reset seeds ``derive_seed(seed, task, k)``, one action
+Everything is a function of the seed: reset seeds ``seeding.reset_seed(seed, task, k)``, one action
 sampling stream per batch named by its tasks (independent of which process runs it), correction
-choices ``derive_rng(seed, task, k, 0xC0)``.
+choices ``seeding.correction_rng(seed, task, k)``.
 """
 
 from __future__ import annotations
@@ -26,11 +26,12 @@ from typing import Any, Union, cast
 import numpy as np
 import torch
 
-from gpl_dist.models.gpl import Conditioning, PolicyNetwork
+from gpl_dist.models.build import PolicyNetwork
+from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
 from gpl_dist.records import Attempt, Correction
 from gpl_dist.roles import BatchExpert, CorrectionOracle, DomainSpec, Expert, trajectory_times
-from gpl_dist.seeding import derive_rng, derive_seed
+from gpl_dist.seeding import actions_rng, correction_phrasing_rng, correction_rng, instruction_phrasing_rng, reset_seed
 
 log = logging.getLogger(__name__)
 
@@ -118,7 +119,7 @@ class Rollout:
         full_information: condition on the oracle's full-information text instead of the instruction.
         phrasings: say the instruction and the oracle's corrections as they are (``canonical``),
             or as the domain's ``train`` or ``heldout`` paraphrases (``language.Paraphrases``;
-            drawn with ``derive_rng(seed, task, 0xFA)`` and ``derive_rng(seed, task, k, 0xFB)``).
+            drawn with ``seeding.instruction_phrasing_rng`` and ``seeding.correction_phrasing_rng``).
             A person's corrections are paraphrased too unless ``canonical``.
 
     Text is encoded with the policy's own vocabulary (``policy.vocabulary``): words it lacks read
@@ -151,12 +152,12 @@ class Rollout:
         task_ids = tuple(int(t) for t in task_ids)
         batch = self._start(task_ids)
         max_attempts = num_corrections + 1 if self.policy.uses_corrections else 1
-        action_rng = derive_rng(seed, round_index, *task_ids[:1], len(task_ids), 0xAC7)
+        action_rng = actions_rng(seed, round_index, task_ids)
         for k in range(max_attempts):
             active = np.flatnonzero(~batch.solved & ~batch.failed)
             if active.size == 0:
                 break
-            reset_seeds = [derive_seed(seed, task_ids[i], k) for i in active]
+            reset_seeds = [reset_seed(seed, task_ids[i], k) for i in active]
             buffers = self._reset(batch, active, k, reset_seeds, seed)
             infos, returns = self._step_attempt(batch, active, buffers, action_rng, k)
             self._finish_attempt(batch, active, buffers, infos, returns, k, reset_seeds,
@@ -190,7 +191,7 @@ class Rollout:
                 if k == 0 and self.full_information:
                     batch.instructions[i] = self.corrections.full_information(batch.envs[i])  # type: ignore[union-attr]
                 elif k == 0:
-                    rng = derive_rng(seed, batch.task_ids[i], 0xFA) if self.phrasings != "canonical" else None
+                    rng = instruction_phrasing_rng(seed, batch.task_ids[i]) if self.phrasings != "canonical" else None
                     batch.instructions[i] = self._say(batch.envs[i].instruction, rng)
             except Exception as err:  # noqa: BLE001
                 batch.fail(i, "reset", err)
@@ -313,13 +314,13 @@ class Rollout:
             text, kind = "", ""
             if not success and not last:
                 try:
-                    corr = self._correct(batch.envs[i], derive_rng(seed, task_id, k, 0xC0))
+                    corr = self._correct(batch.envs[i], correction_rng(seed, task_id, k))
                 except Exception as err:  # noqa: BLE001
                     batch.fail(int(i), "correction", err)
                     continue
                 text, kind = corr.text, corr.kind
                 if self.phrasings != "canonical":
-                    text = self._say(text, derive_rng(seed, task_id, k, 0xFB))
+                    text = self._say(text, correction_phrasing_rng(seed, task_id, k))
             corr_ids = vocab.encode(text) if text else np.zeros(vocab.max_tokens, dtype=np.int64)
             batch.attempts[i].append(Attempt(
                 task_id=task_id, split=split, attempt_index=k,

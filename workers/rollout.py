@@ -27,8 +27,8 @@ from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import CollectionConfig, EnvConfig, ModelConfig
 from gpl_dist.corrections import make_corrector
 from gpl_dist.faults import fault_point
-from gpl_dist.metrics import completion_by_corrections
-from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS, PolicyNetwork, build_model_from_config, load_numpy_state
+from gpl_dist.models.build import PolicyNetwork, build_model_from_config, load_numpy_state
+from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
 from gpl_dist.records import Attempt, WorkUnit
 from gpl_dist.roles import DomainSpec
 from workers.loop import Rollout, TaskFailure, sample_actions  # noqa: F401 - re-exported
@@ -107,9 +107,3 @@ class RolloutWorker:
                                   split=split, policy_version=self.policy_version)
         self.failures = list(result.failures)
         return list(result.attempts)
-
-
-def completion_by_attempt(attempts: Sequence[Attempt], max_attempts: int) -> np.ndarray:
-    """Mean completion after 0..max_attempts-1 corrections over the tasks in ``attempts``."""
-    return completion_by_corrections(np.array([a.task_id for a in attempts]), np.array([a.attempt_index for a in attempts]),
-                                     np.array([a.completion for a in attempts]), max_attempts)

@@ -180,7 +180,7 @@ _THINGS = ("the object room", "the object", "the exit", "the goal room", "the go
 @functools.cache
 def phrasings() -> tuple[str, ...]:
     """Every correction a multi-room oracle of a text kind (subgoal, directional, binary) can say:
-    the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
+    the phrasings a person's correction is compared with (``gpl_dist.app.teaching``)."""
     subgoal = ([f"enter the {c} room" for c in COLOURS] + [f"exit the {c} room" for c in COLOURS]
                + [f"go to the {c} room" for c in COLOURS]
                + [f"pick up the {c} {s}" for c in COLOURS for s in SHAPES] + [f"go to the {c} goal" for c in COLOURS])

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from gpl_dist.envs.relocation import (
+from gpl_dist.envs.relocation_core import (
     CORRECTION_KINDS,
     DIGIT_WORDS,
     DIRECTION_PHRASES,
@@ -149,7 +149,7 @@ class RelocationCorrector:
 @functools.cache
 def phrasings() -> tuple[str, ...]:
     """Every correction the relocation oracle of a text kind can say (touch, directional,
-    relational): the phrasings a person's correction is compared with (``gpl_dist.teaching``)."""
+    relational): the phrasings a person's correction is compared with (``gpl_dist.app.teaching``)."""
     return (*(f"Touch the {c} block" for c in MOVABLE_COLORS),
             *(f"Move {amount} {d}" for amount in ("a little", "a lot") for d in DIRECTION_PHRASES),
             *(f"Move {d} of the {c} block" for c in FIXED_COLORS for d in DIRECTION_PHRASES),

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from gpl_dist.envs.relocation import BLOCK_HALF, BLOCK_QPOS, FIXED_XY
+from gpl_dist.envs.relocation_core import BLOCK_HALF, BLOCK_QPOS, FIXED_XY
 
 SIZE = 400
 #: World window: centre and half-width (a square, x right, y up).

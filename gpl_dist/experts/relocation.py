@@ -56,7 +56,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from gpl_dist.envs.relocation import BLOCK_HALF, BLOCK_QPOS, FIXED_XY
+from gpl_dist.envs.relocation_core import BLOCK_HALF, BLOCK_QPOS, FIXED_XY
 from gpl_dist.experts.relocation_grid import LazyField
 
 _RES = 0.02

@@ -8,7 +8,7 @@ the exact target given (``docs/history.md`` has the figures).
 What: one network for all tasks, ``pi(a | obs, target, block)``: the 28-d observation, the task's
 exact target (x, y) and the goal block's one-hot (the authors' full-information inputs), through
 an input normalisation and an MLP 256 x 3 (ReLU) to 4 action logits. A family of per-task
-experts in one function. Trained in two steps (``gpl_dist.experts.relocation_training``;
+experts in one function. Trained in two steps (``learner.relocation_expert_training``;
 ``scripts/train_relocation_expert.py`` runs them):
 
 1. DAgger on the scripted expert's soft labels, 14 rounds over 250 training tasks;
@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from gpl_dist.envs.relocation import FIXED_XY
+from gpl_dist.envs.relocation_core import FIXED_XY
 
 WEIGHTS = "relocation_learned_expert.npz"
 #: array names in the weights file: input normalisation, then (weight, bias) of each linear layer

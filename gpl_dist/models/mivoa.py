@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from gpl_dist.models.gpl import Conditioning, GridStateEncoder, VectorStateEncoder, _categories, mlp
+from gpl_dist.models.layers import Conditioning, GridStateEncoder, VectorStateEncoder, grid_categories, mlp
 from gpl_dist.roles import DomainSpec
 
 MIVOA_VARIANTS = ("mivoa", "mivoa_full_information")
@@ -85,7 +85,7 @@ class MIVOAPolicy(nn.Module):
         self.instruction = InstructionLSTM(vocab.size, vocab.pad_id, embedding_dim, sizes.instruction_mlp[-1])
         if len(domain.obs_shape) == 3:
             h, w, c = domain.obs_shape
-            self.state: nn.Module = GridStateEncoder((h, w, 2 * c), _categories(domain) * 2, sizes.state_channels,
+            self.state: nn.Module = GridStateEncoder((h, w, 2 * c), grid_categories(domain) * 2, sizes.state_channels,
                                                      sizes.state_mlp, conv_batchnorm)
         else:
             self.state = VectorStateEncoder((2 * domain.obs_shape[0],))

@@ -14,6 +14,8 @@ from PIL import Image
 
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
+from gpl_dist.experts import make_expert
+from learner.evaluate import load_trained_policy, meta_test_rollout
 
 
 def parse_actions(text: str) -> list[int]:
@@ -45,7 +47,6 @@ def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None
     steps = max_steps or domain.steps_per_attempt
     policy = None
     if expert:
-        from gpl_dist.experts import make_expert
         policy = make_expert(env)
     planned = list(actions or ())
     for t in range(steps if expert else min(len(planned), steps)):
@@ -88,7 +89,6 @@ def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, 
     the attempt, the correction that led to it (the instruction for the first), and the attempt's
     completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt).
     """
-    from learner.evaluate import load_trained_policy, meta_test_rollout
 
     if num_attempts < 1:
         raise UsageError(f"--attempts must be at least 1, got {num_attempts}")

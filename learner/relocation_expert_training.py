@@ -33,7 +33,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from gpl_dist.envs.relocation import EPISODE_STEPS, SUCCESS_RADIUS, RelocationEnv, make_env, make_task
+from gpl_dist.envs.relocation import RelocationEnv, make_env
+from gpl_dist.envs.relocation_core import EPISODE_STEPS, SUCCESS_RADIUS, make_task
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import NUM_LAYERS
 from gpl_dist.splits import split_tasks

@@ -6,7 +6,7 @@ of a GIF of it; then the person types the next correction. Lines starting with `
 not know, or that is none of the phrasings it was trained on, is shown with the closest known
 phrasing before it is sent: Enter sends it as typed, ``:use`` the closest one. Lines typed while
 an attempt runs are dropped (they were typed before seeing it). Every attempt is logged
-(``gpl_dist.teaching``).
+(``gpl_dist.app.teaching``).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, TextIO
 
-from gpl_dist.teaching import TaughtAttempt, TeachingEpisode, write_episode_log
+from gpl_dist.app.teaching import TaughtAttempt, TeachingEpisode, write_episode_log
 
 HELP = "type a correction; commands: ':hint' (what the oracle would say), ':quit'"
 

@@ -1,7 +1,7 @@
-"""A suite's runs as Ray tasks on a cluster: the one place the suite runner touches Ray.
+"""A suite's runs as Ray tasks on a cluster: one of the two places the suite touches Ray (the other: ``rl_cluster``).
 
 Each unfinished (entry, seed) becomes one task (1 CPU: its driver, with the learner unless that
-is a GPU actor) that runs ``gpl_dist.suite.execute``; inside it the run's ``RayCollector`` finds
+is a GPU actor) that runs ``gpl_dist.app.suite.runs.execute``; inside it the run's ``RayCollector`` finds
 Ray already connected and starts its rollout actors (1 CPU each) on the same cluster. The records
 name the commit the suite's driver runs, not what a worker node's checkout says. Runs are started only while the
 cluster's CPUs hold every started run's task and actors: a run's task waiting for CPUs that other
@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import ray
 
+from gpl_dist.app.suite.runs import execute
+from gpl_dist.app.suite.spec import Suite, SuiteRun
 from gpl_dist.errors import SuiteError
-from gpl_dist.suite import Suite, SuiteRun, execute
 from workers.ray_pool import init_ray
 
 
@@ -64,38 +65,3 @@ def execute_on_cluster(runs: list[SuiteRun], suite: Suite, address: str, commit:
     if failed:
         names = ", ".join(f"{r.entry.name}/seed{r.seed}" for r in failed)
         raise SuiteError(f"{len(failed)} suite run(s) failed on the cluster ({names}); run the suite again to resume them")
-
-
-@ray.remote(num_cpus=1, max_retries=0)
-def _rl_task(job, settings, weights, model):
-    from learner.rl import run_rl_job
-
-    return run_rl_job(job, settings, weights, model)
-
-
-def run_rl_on_ray(jobs: list, settings: dict, pretrained: dict, address: str | None, on_done, log=print) -> None:
-    """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
-    as each finishes. ``settings``: domain -> ``learner.rl.PPOSettings``. ``pretrained``: domain ->
-    ``gpl_dist.suite_rl.Pretrained`` for ``rl-finetune`` (its weights put in the object store
-    once). Raises after all ended if any failed."""
-    owned = init_ray(address, num_workers=1)
-    try:
-        shared = {d: (ray.put(dict(p.weights)), p.model) for d, p in pretrained.items()}
-        pending = {}
-        for job in jobs:
-            w, arch = shared[job.domain] if job.method == "rl-finetune" else (None, None)
-            pending[_rl_task.remote(job, settings[job.domain], w, arch)] = job
-        failed = []
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            job = pending.pop(done[0])
-            try:
-                on_done(job, ray.get(done[0]))
-            except ray.exceptions.RayError as err:
-                failed.append(job.key)
-                log(f"[rl] {job.key} FAILED: {str(err).strip().splitlines()[-1][:300]}")
-        if failed:
-            raise SuiteError(f"{len(failed)} RL job(s) failed ({', '.join(failed[:5])}); run again to resume them")
-    finally:
-        if owned:
-            ray.shutdown()

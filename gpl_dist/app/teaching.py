@@ -38,11 +38,19 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
+from gpl_dist.app.rendering import captioned_attempt_frames, gif_bytes
+from gpl_dist.corrections import make_corrector
+from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary, split_words
 from gpl_dist.records import Correction
 from gpl_dist.roles import DomainSpec
-from gpl_dist.splits import split_of
+from gpl_dist.seeding import correction_rng
+from gpl_dist.splits import split_of, split_tasks
+from learner.checkpoint import LATEST
+from learner.evaluate import load_trained_policy
+from storage.fs import resolve
+from workers.loop import Rollout
 
 #: Longest correction or instruction a person may type, in characters.
 MAX_TEXT_CHARS = 200
@@ -170,8 +178,6 @@ class Teacher:
 
     def __init__(self, run_dir: str | Path, checkpoint: str | None = None,
                  max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False):
-        from learner.checkpoint import LATEST
-        from learner.evaluate import load_trained_policy
 
         self.run_dir = str(Path(run_dir).resolve())
         #: the checkpoint file taught (absolute), as the log records it
@@ -193,7 +199,6 @@ class Teacher:
                      split: str = "test") -> int:
         """The task to teach: ``task_id``; else one of ``split``'s tasks whose instruction is
         ``instruction``; else one of ``split``'s tasks, drawn with ``seed``."""
-        from gpl_dist.splits import split_tasks
 
         d = self.domain
         _check_seed(seed)
@@ -225,7 +230,6 @@ class Teacher:
 
     def replay(self, task_id: int, seed: int, corrections: list[str]) -> tuple:
         """Attempts ``0..len(corrections)`` of ``task_id``, the ``k``-th after ``corrections[k-1]``."""
-        from workers.loop import Rollout
 
         given = iter(corrections)
 
@@ -242,15 +246,13 @@ class Teacher:
 
     def oracle_hint(self, task_id: int, seed: int, attempt_index: int, reset_seed: int, actions: np.ndarray) -> str:
         """What the run's oracle would say after the attempt (``actions`` replayed from ``reset_seed``)."""
-        from gpl_dist.corrections import make_corrector
-        from gpl_dist.seeding import derive_rng
 
         env = self.domain.make_env(task_id)
         env.reset(seed=reset_seed)
         for a in actions.tolist():
             env.step(a)
         oracle = make_corrector(self.domain.name, self.cfg.env.correction_kind)
-        return oracle.correct(env, derive_rng(seed, task_id, attempt_index, 0xC0)).text
+        return oracle.correct(env, correction_rng(seed, task_id, attempt_index)).text
 
 
 #: Splits named in the log, the first holding the task (``gpl_dist.splits.split_of``).
@@ -271,7 +273,6 @@ def instruction_of(domain: DomainSpec, task_id: int) -> str:
 
 
 def _domain(name: str) -> DomainSpec:
-    from gpl_dist.domains import get_domain
 
     return get_domain(name)
 
@@ -370,7 +371,6 @@ class TeachingEpisode:
 
     def gif(self, index: int) -> bytes:
         """Attempt ``index`` as an animated GIF, captioned with what led to it and its completion."""
-        from gpl_dist.rendering import captioned_attempt_frames, gif_bytes
 
         if not 0 <= index < len(self.attempts):
             raise TeachingError(f"attempt {index} does not exist (this episode has {len(self.attempts)})")
@@ -421,7 +421,6 @@ def write_episode_log(episode: TeachingEpisode, log_dir: str | Path) -> str:
     """Write (replace) ``<log_dir>/<episode>.parquet`` atomically; returns its path."""
     import pyarrow.parquet as pq
 
-    from storage.fs import resolve
 
     table = pa.Table.from_pylist(episode.log_rows(), schema=LOG_SCHEMA)
     sink = io.BytesIO()

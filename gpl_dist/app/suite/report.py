@@ -9,7 +9,7 @@ methods not built, or entries not run yet, are kept with the paper's number and 
 report always shows every row of the paper.
 
 Writes ``report.md`` (plots beside it as PNG) and ``report.html`` (the same, plots inline), and
-first archives the runs' evidence beside them in ``runs/`` (``gpl_dist.suite_archive``): the report
+first archives the runs' evidence beside them in ``runs/`` (``gpl_dist.app.suite.archive``): the report
 is computed from that archive, so every number traces to a file kept with the report, and a report
 written into the same folder again keeps the runs archived before (a lost machine loses no row).
 """
@@ -24,10 +24,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from gpl_dist.app.suite.archive import archive_runs
+from gpl_dist.app.suite.rl_jobs import plan_of_copy
+from gpl_dist.app.suite.rl_report import sample_complexity_section
+from gpl_dist.app.suite.runs import RECORD_VERSION
+from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
+from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
-from gpl_dist.suite import EVAL_DEFAULTS, RECORD_VERSION, check_seeds
 
-#: The report folder's archive of the runs it reads (``gpl_dist.suite_archive``).
+#: The report folder's archive of the runs it reads (``gpl_dist.app.suite.archive``).
 ARCHIVE_DIR = "runs"
 
 
@@ -62,7 +67,6 @@ _C05 = (0, 1, 2, 3, 4, 5)
 
 def _gpl(domain: str, columns: tuple[int, ...] = _C05) -> tuple[float, ...]:
     """The paper's GPL completions of ``domain`` (its ``DomainSpec.paper_completion``) at ``columns``."""
-    from gpl_dist.domains import get_domain
 
     paper = get_domain(domain).paper_completion
     return tuple(paper[k] for k in columns)
@@ -382,7 +386,6 @@ def evaluations_markdown(results: list[RunResult]) -> str:
 
 def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     """Write ``out/report.md`` (with PNG plots) and ``out/report.html`` (plots inline)."""
-    from gpl_dist.suite_archive import archive_runs
 
     suite_out, out = Path(suite_out), Path(out)
     if not suite_out.is_dir():
@@ -408,7 +411,6 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
-    from gpl_dist.suite_rl import plan_of_copy, sample_complexity_section
 
     plan = plan_of_copy(archive / "suite.yaml")
     rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive, plan=plan)

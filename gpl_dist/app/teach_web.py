@@ -1,8 +1,8 @@
-"""``gpl-dist serve``: the teaching loop (``gpl_dist.teaching``) in a web page.
+"""``gpl-dist serve``: the teaching loop (``gpl_dist.app.teaching``) in a web page.
 
 FastAPI (typed request and response models, validation of every field, a test client; Starlette
 underneath) served by uvicorn, bound to 127.0.0.1 unless told otherwise. The page
-(``gpl_dist/web/teach.html``) is one static file: it keeps its own episode id, so several tabs
+(``gpl_dist/app/web/teach.html``) is one static file: it keeps its own episode id, so several tabs
 teach separate episodes. The JSON API:
 
 ==========================================  =================================================
@@ -33,8 +33,7 @@ from fastapi.middleware.trustedhost import TrustedHostMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field, StrictInt
 
-from gpl_dist.splits import split_tasks
-from gpl_dist.teaching import (
+from gpl_dist.app.teaching import (
     MAX_SEED,
     MAX_TEXT_CHARS,
     Teacher,
@@ -44,6 +43,7 @@ from gpl_dist.teaching import (
     instruction_of,
     write_episode_log,
 )
+from gpl_dist.splits import split_tasks
 
 #: Episodes kept in memory at once; starting another forgets the least recently used.
 MAX_EPISODES = 64

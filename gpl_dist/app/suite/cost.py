@@ -20,7 +20,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from statistics import fmean
 
-from gpl_dist.suite import Suite, SuiteRun, plan, read_record
+from gpl_dist.app.suite.runs import read_record
+from gpl_dist.app.suite.spec import Suite, SuiteRun, plan
+from learner.checkpoint import rounds_trained
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,6 @@ def measured(suite: Suite, out: str | Path) -> tuple[dict, dict, set[str]]:
     ``per_round[(key)]`` seconds of training per DAgger round and ``per_eval[(key, evaluation)]``
     seconds of an evaluation, each a list of observations under key ``("entry", name)`` and
     ``("domain", name)``."""
-    from learner.checkpoint import rounds_trained
 
     per_round: dict[tuple[str, str], list[float]] = defaultdict(list)
     per_eval: dict[tuple[tuple[str, str], str], list[float]] = defaultdict(list)
@@ -119,10 +120,9 @@ def _lookup(table: dict, keys: tuple) -> tuple[float | None, str]:
 def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tuple = (),
             measured_in: str | Path | None = None) -> SuiteCost:
     """The cost of every run of ``suite`` under ``out`` whose state (``states[run_dir]``, as
-    ``gpl_dist.suite.run_state`` or ``running`` gives it) is not ``done``, and of the RL jobs
+    ``gpl_dist.app.suite.runs.run_state`` or ``running`` gives it) is not ``done``, and of the RL jobs
     ``rl_left`` (``learner.rl.RLJob``s not done), from the work finished under ``measured_in``
     (``out`` itself by default; another suite's output predicts a new one from its costs)."""
-    from learner.checkpoint import rounds_trained
 
     source_dir = out if measured_in is None else measured_in
     per_round, per_eval, commits = measured(suite, source_dir)

@@ -1,0 +1,129 @@
+"""One run of a suite: its record (``suite-run.json``), its state read from its files, and its
+execution (train, or resume, then evaluate), the same serially and inside a Ray task.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import os
+import subprocess
+import time
+from pathlib import Path
+
+from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
+from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
+from gpl_dist.errors import RunDirError
+from learner.checkpoint import rounds_trained
+from learner.driver import run_training
+from learner.evaluate import evaluate_run
+
+#: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
+RECORD_VERSION = 1
+
+
+@functools.cache
+def code_commit() -> str:
+    """The git commit of the code this process runs, read once, when first asked (``run_suite``
+    asks before any run: a commit made while a suite runs does not relabel its runs), with
+    ``+dirty`` when tracked files differ; ``$GPL_DIST_COMMIT`` where the code came without its
+    ``.git`` (a Ray job's upload); else ``unknown``."""
+    if os.environ.get("GPL_DIST_COMMIT"):
+        return os.environ["GPL_DIST_COMMIT"][:64]
+    here = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,
+                              timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
+def read_record(run_dir: Path) -> dict | None:
+    """A run's ``suite-run.json``, or None; a damaged one fails in one line naming it."""
+    p = run_dir / "suite-run.json"
+    if not p.is_file():
+        return None
+    try:
+        record = json.loads(p.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise RunDirError(f"{p} is damaged ({err}): delete it to let the suite rebuild it from the run's files") from None
+    if not isinstance(record, dict):
+        raise RunDirError(f"{p} does not hold a JSON object: delete it to let the suite rebuild it")
+    return record
+
+
+def _write_record(run_dir: Path, record: dict) -> None:
+    tmp = run_dir / "suite-run.json.tmp"
+    tmp.write_text(json.dumps(record, indent=1) + "\n")
+    tmp.replace(run_dir / "suite-run.json")
+
+
+def _started(run_dir: Path, record: dict, commit: str) -> None:
+    """Record the code's commit before it trains: a run killed and resumed lists every commit that
+    trained a round of it."""
+    record["commits"] = sorted(set(record["commits"]) | {commit})
+    run_dir.mkdir(parents=True, exist_ok=True)
+    _write_record(run_dir, record)
+
+
+def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
+    """A run dir made by another version of its entry is refused: its results would be mixed."""
+    saved = run.run_dir / "config.yaml"
+    if saved.is_file() and results_dict(load_config(saved)) != results_dict(cfg):
+        raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
+                          "(the suite file or the base config changed): use another --out, or remove that run dir")
+
+
+def run_state(run: SuiteRun, suite: Suite) -> str:
+    """``done``, ``evaluate`` (trained), ``resume`` (started) or ``new``, read from the run's files."""
+
+    cfg = run.config(suite)
+    _check_unchanged(run, cfg)
+    if not any((run.run_dir / name).exists() for name in ("config.yaml", "checkpoints", "buffer", "metrics.jsonl")):
+        return "new"  # nothing but lease files: a driver stopped before writing anything
+    if rounds_trained(run.run_dir) < cfg.training.num_rounds:
+        return "resume"
+    done = (read_record(run.run_dir) or {}).get("evaluations", {})
+    for name, ev in done.items():
+        now = json.loads(json.dumps(dataclasses.asdict(suite.evaluations[name]))) if name in suite.evaluations else None
+        recorded = {**EVAL_DEFAULTS, **(ev.get("settings") or {})}  # a setting added later: its default
+        if now is not None and recorded != now:  # compared as recorded: JSON lists, not tuples
+            raise ConfigError(f"{run.run_dir}: evaluation '{name}' was made with other settings than the suite "
+                              f"gives now ({ev.get('settings')}): use another --out, or delete {ev.get('file')} and "
+                              f"its entry in suite-run.json to evaluate it again")
+    return "done" if set(run.entry.evaluations) <= set(done) else "evaluate"
+
+
+def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: bool = False, progress: bool = True,
+            log=print, commit: str | None = None) -> dict:
+    """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written.
+    ``commit`` names the code in the records (default: this process's ``code_commit()``)."""
+
+    commit = commit or code_commit()
+    state = run_state(run, suite)
+    record = read_record(run.run_dir) or {"version": RECORD_VERSION, "suite": str(suite.path), "entry": run.entry.name,
+                                          "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
+    if state in ("new", "resume"):
+        log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
+        _started(run.run_dir, record, commit)
+        t0 = time.perf_counter()
+        run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
+                     progress=progress)
+        record["train_seconds"] += time.perf_counter() - t0
+        _write_record(run.run_dir, record)
+    for name in run.entry.evaluations:
+        if name in record["evaluations"]:
+            continue
+        ev = suite.evaluations[name]
+        log(f"[{run.entry.name} seed {run.seed}] evaluation '{name}'")
+        t0 = time.perf_counter()
+        _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
+                               max_tasks=ev.max_tasks, greedy=ev.greedy_actions, phrasings=ev.phrasings)
+        record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
+                                       "commit": commit, "settings": dataclasses.asdict(ev)}
+        _write_record(run.run_dir, record)
+    return record
