@@ -34,17 +34,19 @@ class EnvConfig:
     """The ``env`` section: domain, tasks, correction oracle and expert."""
 
     domain: str = "multiroom"
-    """Domain to meta-train on: ``multiroom`` or ``relocation``."""
-    train_split: str = "train"
-    """Versioned split whose tasks are collected on during meta-training."""
+    """Domain to meta-train on: ``multiroom``, ``relocation`` or a registered plug-in domain."""
+    domain_module: str = ""
+    """Module (dotted name) or .py file whose import registers ``domain`` (a domain from outside gpl-dist)."""
+    train_split: str = ""
+    """Versioned split whose tasks are collected on during meta-training ("": the domain's ``train_split``)."""
     max_train_tasks: int = 0
     """Use only the first N tasks of the training split (0 uses all of them)."""
     task_ids: tuple[int, ...] = ()
     """Meta-train on exactly these task ids instead of the training split (empty uses the split)."""
     correction_kind: str = "default"
     """Correction oracle variant: default (the domain's paper oracle) or a kind the domain lists."""
-    expert: str = "scripted"
-    """Expert that labels visited states: scripted, or learned (relocation: a PPO-tuned MLP, as the authors')."""
+    expert: str = ""
+    """Expert that labels visited states ("": the domain's first; relocation also has learned, a PPO-tuned MLP)."""
 
 
 @dataclass(frozen=True)
@@ -135,8 +137,8 @@ class TrainingConfig:
 class EvalConfig:
     """The ``eval`` section: meta-test settings."""
 
-    split: str = "test"
-    """Split of held-out tasks for meta-testing."""
+    split: str = ""
+    """Split of held-out tasks for meta-testing ("": the domain's ``eval_split``)."""
     num_corrections: int = 5
     """Corrections given at meta-test time (completion is reported after 0..num_corrections)."""
     seeds: tuple[int, ...] = (0, 1, 2)
@@ -247,8 +249,28 @@ def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>") -
         cfg = _build(RunConfig, values, "")
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
+    cfg = _with_domain_defaults(cfg, source)
     validate(cfg, source)
     return cfg
+
+
+def _with_domain_defaults(cfg: RunConfig, source: str) -> RunConfig:
+    """``cfg`` with its domain's module imported (``env.domain_module``) and the fields left "" set
+    to the domain's defaults (expert, training and evaluation splits); an unknown domain is left
+    for ``validate`` to name."""
+    from gpl_dist.domains import domain_names, get_domain, load_domain_module
+
+    if cfg.env.domain_module:
+        try:
+            load_domain_module(cfg.env.domain_module)
+        except UserError as err:
+            raise ConfigError(f"{source}: env.domain_module: {err}") from None
+    if cfg.env.domain not in domain_names():
+        return cfg
+    spec = get_domain(cfg.env.domain)
+    env = dataclasses.replace(cfg.env, expert=cfg.env.expert or next(iter(spec.experts)),
+                              train_split=cfg.env.train_split or spec.train_split)
+    return dataclasses.replace(cfg, env=env, eval=dataclasses.replace(cfg.eval, split=cfg.eval.split or spec.eval_split))
 
 
 def _set_override(tree: dict, dotted: str, raw: str) -> None:

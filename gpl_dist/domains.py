@@ -3,13 +3,25 @@
 Config validation, the CLI, the worker, the model, the learner and evaluation all read a domain's
 facts from here (experts, correction kinds, model sizes, splits, the paper's figures). The built-in
 domains are imported only when first asked for; ``register_domain`` adds another one (a new
-module's ``DOMAIN``, or one defined in a test), and registers its gymnasium id too. See
-``docs/adding-a-domain.md``.
+module's ``DOMAIN``, or one defined in a test), and registers its gymnasium id too.
+
+A domain from outside the package comes in one of two ways (``docs/adding-a-domain.md``):
+
+- an installed package declares it under the entry-point group ``gpl_dist.domains``
+  (``corridor = "mypkg.corridor"``: the name is the domain's, the module defines ``DOMAIN``);
+  every process finds it by name, Ray actors too;
+- a run's config names the module or ``.py`` file that defines it, ``env.domain_module``; the
+  config travels with the run (its workers, ``eval``, ``--resume``), so each imports it again.
 """
 
 from __future__ import annotations
 
+import hashlib
 import importlib
+import importlib.util
+import sys
+from importlib.metadata import entry_points
+from pathlib import Path
 
 from gpl_dist.errors import UsageError
 from gpl_dist.roles import DomainSpec
@@ -51,18 +63,66 @@ def unregister_domain(name: str) -> None:
         registry.pop(spec.env_id, None)
 
 
+#: The entry-point group an installed package declares its domains under.
+ENTRY_POINT_GROUP = "gpl_dist.domains"
+
+
+def _plugins() -> dict[str, str]:
+    """Domain name -> module of every installed plug-in (entry points), without importing any."""
+    return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
 def domain_names() -> tuple[str, ...]:
-    """Every known domain name (built-in first), without importing any domain."""
-    return tuple(BUILTIN_DOMAINS) + tuple(n for n in _REGISTERED if n not in BUILTIN_DOMAINS)
+    """Every known domain name (built-in first, then plug-ins and registered ones), importing none."""
+    names = list(BUILTIN_DOMAINS)
+    for name in (*_plugins(), *_REGISTERED):
+        if name not in names:
+            names.append(name)
+    return tuple(names)
 
 
 def get_domain(name: str) -> DomainSpec:
-    """The ``DomainSpec`` of ``name``; ``ValueError`` naming the known domains otherwise."""
+    """The ``DomainSpec`` of ``name``; ``UsageError`` naming the known domains otherwise."""
     if name not in _REGISTERED and name in BUILTIN_DOMAINS:
         register_domain(importlib.import_module(BUILTIN_DOMAINS[name]).DOMAIN)
+    if name not in _REGISTERED and name in _plugins():
+        load_domain_module(_plugins()[name].split(":")[0])
     if name not in _REGISTERED:
         raise UsageError(f"unknown domain '{name}' (known: {', '.join(domain_names())})")
     return _REGISTERED[name]
+
+
+def load_domain_module(ref: str) -> tuple[str, ...]:
+    """Import ``ref`` (a dotted module name, or the path of a ``.py`` file) and register the
+    ``DomainSpec`` it defines as ``DOMAIN``; returns the names registered. Importing it again (the
+    same path, in a worker that already has it) registers nothing new."""
+    ref = str(ref).strip()
+    if ref.endswith(".py"):
+        path = Path(ref).expanduser().resolve()
+        if not path.is_file():
+            raise UsageError(f"domain module {ref}: no such file")
+        name = f"gpl_dist_domain_{path.stem}_{hashlib.sha256(str(path).encode()).hexdigest()[:12]}"
+        module = sys.modules.get(name)
+        if module is None:
+            spec = importlib.util.spec_from_file_location(name, path)
+            if spec is None or spec.loader is None:
+                raise UsageError(f"domain module {ref}: not a Python file")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[name] = module
+            try:
+                spec.loader.exec_module(module)
+            except Exception:
+                del sys.modules[name]
+                raise
+    else:
+        try:
+            module = importlib.import_module(ref)
+        except ModuleNotFoundError as err:
+            raise UsageError(f"domain module {ref}: {err}") from None
+    domain = getattr(module, "DOMAIN", None)
+    if not isinstance(domain, DomainSpec):
+        raise UsageError(f"domain module {ref} defines no DOMAIN (a gpl_dist.roles.DomainSpec)")
+    return (register_domain(domain).name,)
 
 
 def _spec_problems(spec: DomainSpec) -> list[str]:

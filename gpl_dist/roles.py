@@ -54,6 +54,8 @@ class DomainSpec:
         make_env: builds the (unwrapped) env of a task: ``make_env(task_id, **kwargs)``; with
             ``render_mode="rgb_array"`` its ``render()`` draws the scene (``gpl-dist render``).
         split_names: names of the task splits.
+        train_split: the split a run collects on unless ``env.train_split`` names another.
+        eval_split: the split a meta-test reads unless ``eval.split`` names another.
         experts: expert kind -> factory of an ``Expert`` (the first kind is the default).
         correction_kinds: kinds ``make_corrector`` accepts; ``default`` is the paper's oracle.
         make_corrector: ``make_corrector(kind)`` -> ``CorrectionOracle``.
@@ -96,6 +98,8 @@ class DomainSpec:
     full_information_values: Callable[[int], np.ndarray] | None = None
     correction_phrasings: Callable[[], tuple[str, ...]] | None = None
     paraphrases: Paraphrases | None = None
+    train_split: str = "train"
+    eval_split: str = "test"
 
     def vocabulary_for(self, paraphrases: bool) -> Vocabulary:
         """The vocabulary of a model trained with (``paraphrases``) or without paraphrases: the

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
-from gpl_dist.domains import get_domain
+from gpl_dist.domains import get_domain, load_domain_module
 from gpl_dist.records import WorkUnit
 from workers.rollout import RolloutSettings, RolloutWorker
 
@@ -41,9 +41,12 @@ def run_unit(worker: RolloutWorker, unit: WorkUnit) -> UnitResult:
 
 def make_worker(domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
                 worker_id: str, num_threads: int = 0) -> RolloutWorker:
-    """A rollout worker that writes its shards into the buffer at ``buffer_root``."""
+    """A rollout worker that writes its shards into the buffer at ``buffer_root``; a plug-in domain's
+    module (``env.domain_module``) is imported here first, in whichever process the worker runs."""
     from storage import ShardWriter
 
+    if settings.env.domain_module:
+        load_domain_module(settings.env.domain_module)
     return RolloutWorker(get_domain(domain_name), settings, ShardWriter(buffer_root, run_id), worker_id, num_threads)
 
 
