@@ -50,6 +50,7 @@ def test_spec_matches_env(env_id):
     assert {"completion", "success"} <= set(info)
     assert isinstance(env.unwrapped.instruction, str) and env.unwrapped.instruction
     assert env.unwrapped.domain_name == spec.name
+    assert set(load_splits(spec.name)) == set(spec.split_names)  # the split file names what the spec lists
 
 
 def _episode(env, seed, n):

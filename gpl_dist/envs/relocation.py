@@ -348,7 +348,7 @@ DOMAIN = DomainSpec(
     trajectory_stride=70,
     vocabulary=VOCABULARY,
     make_env=make_env,
-    split_names=("train", "test"),
+    split_names=("train", "valid", "test"),
     experts={"scripted": lazy("gpl_dist.experts.relocation:RelocationExpert"),
              "learned": lazy("gpl_dist.experts.relocation_learned:LearnedRelocationExpert")},
     correction_kinds=CORRECTION_KINDS,
