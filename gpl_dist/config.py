@@ -240,6 +240,23 @@ def _build(cls: type, values: Mapping[str, Any], where: str) -> Any:
     return cls(**kwargs)
 
 
+def eval_config_from_dict(values: Mapping[str, Any], where: str = "eval") -> EvalConfig:
+    """An ``EvalConfig`` from a mapping (a suite's named evaluation): unknown keys and wrong types
+    fail in one line naming ``where``; the split is checked with the run's domain."""
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{where}: expected a mapping, got {type(values).__name__}")
+    cfg = _build(EvalConfig, values, where)
+    checks = [
+        _one_of(f"{where}.phrasings", cfg.phrasings, PHRASINGS),
+        (0 <= cfg.num_corrections <= MAX_CORRECTIONS, f"{where}.num_corrections must be in 0..{MAX_CORRECTIONS}"),
+        (cfg.max_tasks >= 0, f"{where}.max_tasks must be >= 0 (0 evaluates every task of the split)"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise ConfigError(message)
+    return cfg
+
+
 def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>") -> RunConfig:
     """Build a ``RunConfig`` from nested mappings; unspecified fields keep their defaults."""
     values = values or {}

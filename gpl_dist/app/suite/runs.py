@@ -4,7 +4,6 @@ execution (train, or resume, then evaluate), the same serially and inside a Ray 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import json
 import os
@@ -89,7 +88,7 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
         return "resume"
     done = (read_record(run.run_dir) or {}).get("evaluations", {})
     for name, ev in done.items():
-        now = json.loads(json.dumps(dataclasses.asdict(suite.evaluations[name]))) if name in suite.evaluations else None
+        now = suite.evaluations[name].settings() if name in suite.evaluations else None
         recorded = {**EVAL_DEFAULTS, **(ev.get("settings") or {})}  # a setting added later: its default
         if now is not None and recorded != now:  # compared as recorded: JSON lists, not tuples
             raise ConfigError(f"{run.run_dir}: evaluation '{name}' was made with other settings than the suite "
@@ -118,12 +117,13 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
     for name in run.entry.evaluations:
         if name in record["evaluations"]:
             continue
-        ev = suite.evaluations[name]
+        evaluation = suite.evaluations[name]
+        ev = evaluation.config
         log(f"[{run.entry.name} seed {run.seed}] evaluation '{name}'")
         t0 = time.perf_counter()
         _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
                                max_tasks=ev.max_tasks, greedy=ev.greedy_actions, phrasings=ev.phrasings)
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
-                                       "commit": commit, "settings": dataclasses.asdict(ev)}
+                                       "commit": commit, "settings": evaluation.settings()}
         _write_record(run.run_dir, record)
     return record

@@ -28,6 +28,7 @@ The format, in one place (unknown keys fail in one line before anything runs)::
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,41 +37,31 @@ from typing import Any, Mapping
 import yaml
 
 from gpl_dist.app.suite.rl_plan import parse_rl_plan
-from gpl_dist.config import ConfigError, RunConfig, load_config
-from gpl_dist.language import PHRASINGS
+from gpl_dist.config import ConfigError, EvalConfig, RunConfig, eval_config_from_dict, load_config
 
-_EVAL_KEYS = {"split": str, "seeds": list, "num_corrections": int, "greedy_actions": bool, "max_tasks": int,
-              "phrasings": str}
-
-
-#: Evaluation settings a suite file may leave out, with their values (also read into older records).
-EVAL_DEFAULTS = {"max_tasks": 0, "phrasings": "canonical"}
+#: Evaluation settings a suite file must give: fixed for every entry that names the evaluation.
+_EVAL_REQUIRED = {"split", "seeds", "num_corrections", "greedy_actions"}
 
 
 @dataclass(frozen=True)
 class Evaluation:
-    """One named set of meta-test settings, identical for every entry that names it."""
+    """One named set of meta-test settings (an ``EvalConfig``), identical for every entry that names it."""
 
     name: str
-    split: str
-    """Task split evaluated (``test``, ``heldout_test``, ...)."""
-    seeds: tuple[int, ...]
-    """Evaluation seeds (each a full pass over the split's tasks)."""
-    num_corrections: int
-    """Corrections per task (attempts = corrections + 1)."""
-    greedy_actions: bool
-    """Argmax actions instead of sampled ones."""
-    max_tasks: int
-    """Evaluate the split's first tasks only (0: all)."""
-    phrasings: str = "canonical"
-    """Instructions and corrections said as the oracle does (canonical) or as train/heldout paraphrases."""
+    config: EvalConfig
 
     def overrides(self) -> dict[str, str]:
         """This evaluation as ``eval.*`` config overrides."""
-        return {"eval.split": self.split, "eval.seeds": json.dumps(list(self.seeds)),
-                "eval.num_corrections": str(self.num_corrections),
-                "eval.greedy_actions": "true" if self.greedy_actions else "false", "eval.max_tasks": str(self.max_tasks),
-                "eval.phrasings": self.phrasings}
+        return {f"eval.{k}": json.dumps(list(v)) if isinstance(v, tuple) else json.dumps(v) if isinstance(v, bool)
+                else str(v) for k, v in dataclasses.asdict(self.config).items()}
+
+    def settings(self) -> dict[str, Any]:
+        """What a run's record keeps of it (``suite-run.json``), as JSON gives it back."""
+        return json.loads(json.dumps({"name": self.name, **dataclasses.asdict(self.config)}))
+
+
+#: Settings that older records lack, with the values they were made with.
+EVAL_DEFAULTS = {"max_tasks": 0, "phrasings": "canonical"}
 
 
 @dataclass(frozen=True)
@@ -144,15 +135,11 @@ def check_seeds(where: str, value: Any) -> tuple[int, ...]:
 
 
 def _evaluation(where: str, name: str, raw: Any) -> Evaluation:
-    _keys(where, raw, set(_EVAL_KEYS), set(_EVAL_KEYS) - set(EVAL_DEFAULTS))
-    for key, tp in _EVAL_KEYS.items():
-        value = raw.get(key, EVAL_DEFAULTS.get(key, 0))
-        _expect(isinstance(value, tp) and (tp is bool or not isinstance(value, bool)), f"{where}.{key}",
-                f"expected {tp.__name__}, got {value!r}")
-    phrasings = raw.get("phrasings", "canonical")
-    _expect(phrasings in PHRASINGS, f"{where}.phrasings", f"expected one of {', '.join(PHRASINGS)}, got {phrasings!r}")
-    return Evaluation(name, raw["split"], check_seeds(f"{where}.seeds", raw["seeds"]), raw["num_corrections"],
-                      raw["greedy_actions"], raw.get("max_tasks", 0), phrasings)
+    names = {f.name for f in dataclasses.fields(EvalConfig)}
+    _keys(where, raw, names, _EVAL_REQUIRED)
+    config = eval_config_from_dict(raw, where)
+    check_seeds(f"{where}.seeds", list(config.seeds))
+    return Evaluation(name, config)
 
 
 def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[str, Evaluation]) -> Entry:
