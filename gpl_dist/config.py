@@ -170,6 +170,18 @@ class RunConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     """Meta-test evaluation."""
 
+    def __post_init__(self) -> None:
+        """Fields left "" take the domain's defaults (its first expert, its training and evaluation
+        splits), once the domain is known (a plug-in's module loads in ``config_from_dict``)."""
+        from gpl_dist.domains import domain_names, get_domain
+
+        if not (self.env.expert and self.env.train_split and self.eval.split) and self.env.domain in domain_names():
+            spec = get_domain(self.env.domain)
+            object.__setattr__(self, "env", dataclasses.replace(
+                self.env, expert=self.env.expert or next(iter(spec.experts)),
+                train_split=self.env.train_split or spec.train_split))
+            object.__setattr__(self, "eval", dataclasses.replace(self.eval, split=self.eval.split or spec.eval_split))
+
 
 def field_docs(cls: type) -> dict[str, str]:
     """The docstring under each field of dataclass ``cls`` (fields without one are absent)."""
@@ -275,19 +287,14 @@ def _with_domain_defaults(cfg: RunConfig, source: str) -> RunConfig:
     """``cfg`` with its domain's module imported (``env.domain_module``) and the fields left "" set
     to the domain's defaults (expert, training and evaluation splits); an unknown domain is left
     for ``validate`` to name."""
-    from gpl_dist.domains import domain_names, get_domain, load_domain_module
+    from gpl_dist.domains import load_domain_module
 
     if cfg.env.domain_module:
         try:
             load_domain_module(cfg.env.domain_module)
         except UserError as err:
             raise ConfigError(f"{source}: env.domain_module: {err}") from None
-    if cfg.env.domain not in domain_names():
-        return cfg
-    spec = get_domain(cfg.env.domain)
-    env = dataclasses.replace(cfg.env, expert=cfg.env.expert or next(iter(spec.experts)),
-                              train_split=cfg.env.train_split or spec.train_split)
-    return dataclasses.replace(cfg, env=env, eval=dataclasses.replace(cfg.eval, split=cfg.eval.split or spec.eval_split))
+    return dataclasses.replace(cfg)  # __post_init__ again, now that a plug-in domain is registered
 
 
 def _set_override(tree: dict, dotted: str, raw: str) -> None:

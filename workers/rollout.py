@@ -80,7 +80,7 @@ class RolloutWorker:
         self.model: PolicyNetwork = build_model_from_config(domain, settings.model)
         self.model.eval()
         self.policy_version = -1
-        expert = domain.experts[settings.env.expert]() if settings.label_states else None
+        expert = domain.experts[settings.env.expert or next(iter(domain.experts))]() if settings.label_states else None
         self.rollout = Rollout(domain, self.model, make_corrector(domain.name, settings.env.correction_kind), expert,
                                greedy=settings.collection.greedy_actions,
                                end_aligned=settings.model.trajectory_ends_at_last_state,
