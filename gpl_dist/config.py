@@ -23,6 +23,7 @@ import yaml
 
 from gpl_dist.errors import UserError
 from gpl_dist.language import PHRASINGS
+from gpl_dist.variants import VARIANTS
 
 
 class ConfigError(UserError, ValueError):
@@ -343,8 +344,7 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
 MAX_CORRECTIONS = 100
 
 # ablations: no_instruction, no_trajectory, latest_correction (gpl_dist.models.gpl)
-_VARIANTS = ("gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
-             "mivoa", "mivoa_full_information", "gpr")
+_VARIANTS = tuple(VARIANTS)
 _DEVICES = ("auto", "cpu", "cuda")
 #: where the learners run (``training.engine``): the driver's machine, or a Ray Train worker group
 ENGINES = ("processes", "ray-train")

@@ -6,9 +6,9 @@ from gpl_dist.domains import get_domain
 from gpl_dist.models.build import build_model, load_numpy_state, state_dict_to_numpy
 from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
+from gpl_dist.variants import VARIANTS as METHODS
 
-VARIANTS = ["gpl", "instruction_only", "full_information", "no_instruction", "no_trajectory", "latest_correction",
-            "mivoa", "mivoa_full_information", "gpr"]
+VARIANTS = list(METHODS)  # every row of the variant table
 
 
 def random_states(domain, shape, g):

@@ -47,6 +47,7 @@ from gpl_dist.records import Correction
 from gpl_dist.roles import DomainSpec
 from gpl_dist.seeding import correction_rng
 from gpl_dist.splits import split_of, split_tasks
+from gpl_dist.variants import TEACHABLE
 from learner.checkpoint import LATEST
 from learner.evaluate import load_trained_policy
 from storage.fs import resolve
@@ -59,7 +60,7 @@ DEFAULT_MAX_CORRECTIONS = 10
 #: Kind recorded for a person's correction in ``Attempt.correction_kind``.
 PERSON_KIND = "person"
 #: Policy variants that read the words of a correction (GPR reads a reward; the others none).
-TEACHABLE_VARIANTS = ("gpl", "no_instruction", "no_trajectory", "latest_correction")
+TEACHABLE_VARIANTS = TEACHABLE
 
 
 class TeachingError(UsageError):

@@ -43,10 +43,11 @@ from gpl_dist.models.layers import (
 )
 from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec
+from gpl_dist.variants import FULL_INFORMATION, WITHOUT_CORRECTIONS
 
-VARIANTS_WITHOUT_CORRECTIONS = ("instruction_only", "full_information")
+VARIANTS_WITHOUT_CORRECTIONS = WITHOUT_CORRECTIONS
 #: Variants conditioned on the oracle's full-information text in place of the instruction.
-FULL_INFORMATION_VARIANTS = ("full_information", "mivoa_full_information")
+FULL_INFORMATION_VARIANTS = FULL_INFORMATION
 
 
 class TrajectoryEncoder(nn.Module):

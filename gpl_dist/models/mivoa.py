@@ -29,8 +29,9 @@ from torch import nn
 
 from gpl_dist.models.layers import Conditioning, GridStateEncoder, VectorStateEncoder, grid_categories, mlp
 from gpl_dist.roles import DomainSpec
+from gpl_dist.variants import MIVOA
 
-MIVOA_VARIANTS = ("mivoa", "mivoa_full_information")
+MIVOA_VARIANTS = MIVOA
 
 
 @dataclass(frozen=True)
