@@ -20,7 +20,7 @@ class Correction:
     Attributes:
         text: the English sentence, e.g. ``"enter the blue room"``.
         kind: which rule produced it: ``subgoal``, ``directional``, ``binary``, ``relational``,
-            ``touch``, ``full_information`` or ``reward``.
+            ``touch``, ``full_information``, ``reward`` or ``retry``.
     """
 
     text: str

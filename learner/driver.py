@@ -452,8 +452,9 @@ def format_round(m: RoundMetrics) -> str:
                  " the policy cannot use corrections")
     for h in m.encoder_health:
         if h.output_dead:
-            line += (f"\nwarning: all {h.output_units} output units of the {h.encoder} encoder are dead (never positive);"
-                     " the policy no longer sees its input (model.linear_encodings keeps encodings linear)")
+            line += (f"\nwarning: all {h.output_units} output units of the {h.encoder} encoder are dead (never positive;"
+                     " for MIVOA's LSTM, constant): the policy no longer sees its input (for GPL, model.linear_encodings keeps"
+                     " encodings linear)")
         elif h.constant:
             line += (f"\nwarning: every unit of a hidden layer of the {h.encoder} encoder is dead (never positive): its"
                      " encoding is the same for every input, so the policy no longer sees that input")

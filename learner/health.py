@@ -8,6 +8,10 @@ correction); when most hidden units of the trajectory path die, it reads the ear
 through a few units (seed 1 of that network, the weak seed). The learner counts them after each round
 on a probe of the round's states; the driver logs the counts and warns. A unit that is positive but
 the same for every input counts as alive here, though it carries nothing either.
+
+MIVOA's instruction encoder is an LSTM, whose units are never "never positive" (tanh): there a unit
+is dead when it is constant over the probe's attempts (saturated gates, or weights that ignore the
+words), and the one layer counted is the instruction vector the policy reads (``mivoa_health``).
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from torch import nn
 
 from gpl_dist.models.gpl import GPLPolicy
 from gpl_dist.models.layers import ACTIVATIONS
+from gpl_dist.models.mivoa import MIVOAPolicy
 
 #: The activation modules whose units are counted: a unit is dead when it is never positive (for
 #: LeakyReLU, one that only passes its small negative slope).
@@ -28,6 +33,9 @@ ACTIVATION_MODULES = tuple(ACTIVATIONS.values())
 ENCODERS = ("instruction", "correction", "trajectory", "pair")
 #: States of the round's training view the counts are taken over (spread evenly over the view).
 PROBE_STATES = 4096
+#: A MIVOA instruction unit is constant when its range over the probe is at most this fraction of
+#: the largest magnitude of the instruction vector (float32 noise of an input-independent unit).
+CONSTANT_TOLERANCE = 1e-5
 
 
 @dataclass(frozen=True)
@@ -73,8 +81,10 @@ class EncoderHealth:
 
 
 def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
-    """Dead units of each of ``ENCODERS`` that ``model.encode_conditioning(cond)`` runs; ``()`` for
-    a model without them (MIVOA). The model's mode is left as it was."""
+    """Dead units of each of ``ENCODERS`` that ``model.encode_conditioning(cond)`` runs (MIVOA:
+    ``mivoa_health``); ``()`` for another model. The model's mode is left as it was."""
+    if isinstance(model, MIVOAPolicy):
+        return mivoa_health(model, cond)
     if not isinstance(model, GPLPolicy):
         return ()
     encoders = [(name, getattr(model, name)) for name in ENCODERS]
@@ -101,6 +111,26 @@ def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:
         for h in hooks:
             h.remove()
     return tuple(_count(name, alive, output_layer.get(name)) for name, _ in encoders if any(k[0] == name for k in alive))
+
+
+def mivoa_health(model: MIVOAPolicy, cond) -> tuple[EncoderHealth, ...]:
+    """MIVOA's instruction encoder (an LSTM, then the mean over words): its units are the
+    instruction vector's, dead when constant over the probe's attempts; its one layer is dead
+    whole when the vector is the same for every instruction. ``()`` for a probe of fewer than two
+    distinct instructions (nothing could vary)."""
+    if len({tuple(row.tolist()) for row in cond.instruction_ids}) < 2:
+        return ()
+    was_training = model.training
+    model.eval()
+    try:
+        with torch.no_grad():
+            z = model.encode_conditioning(cond).float().cpu()
+    finally:
+        model.train(was_training)
+    spread = z.max(0).values - z.min(0).values
+    dead = int((spread <= CONSTANT_TOLERANCE * max(float(z.abs().max()), 1e-12)).sum())
+    units = int(z.shape[1])
+    return (EncoderHealth("instruction", units, dead, units, dead, int(dead == units)),)
 
 
 def _count(name: str, alive: dict[tuple[str, int], torch.Tensor], output_layer: int | None) -> EncoderHealth:

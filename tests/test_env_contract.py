@@ -160,3 +160,19 @@ def test_paraphrases_cover_every_sentence_and_hold_out_no_word(env_id):
             assert vocab.unk_id not in vocab.encode(said) and len(split_words(said)) <= vocab.max_tokens, said
     heldout_only = {p.rewrite(t, "heldout", rng) for t in instructions} - {p.rewrite(t, "train", rng) for t in instructions}
     assert heldout_only
+
+
+@pytest.mark.parametrize("env_id", [e for e in ENV_IDS if "retry" in SPECS[e].correction_kinds])
+def test_the_retry_control_says_one_sentence_whatever_the_attempt_did(env_id):
+    """The retry control's oracle carries no information: one sentence after every attempt (solved
+    or not, any task, any draw), made of the domain's words, so no model's shapes change."""
+    spec = SPECS[env_id]
+    oracle = spec.make_corrector("retry")
+    said = set()
+    for task_id in range(0, spec.num_tasks, max(1, spec.num_tasks // 12)):
+        env = _random_attempt_env(spec, task_id, task_id)
+        said |= {oracle.correct(env, np.random.default_rng(s)).text for s in range(3)}
+    default = {spec.make_corrector("default").correct(_random_attempt_env(spec, t, t), np.random.default_rng(0)).text
+               for t in range(0, spec.num_tasks, max(1, spec.num_tasks // 12))}
+    assert len(said) == 1 and len(default) > 1
+    assert all(w in spec.vocabulary.words for w in next(iter(said)).lower().split())

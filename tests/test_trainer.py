@@ -19,13 +19,13 @@ from storage import BufferReader, ShardWriter, commit_round
 from tests.test_rollout import make_worker
 
 
-def _view(tmp_path, rounds=1):
+def _view(tmp_path, rounds=1, task_ids=(1, 2, 3)):
     """A buffer of real multi-room attempts (an untrained policy, 3 tasks, 2 corrections)."""
     root = tmp_path / "run"
     writer = ShardWriter(root, "r")
     worker = make_worker("multiroom", num_corrections=2)
     for r in range(rounds):
-        unit = WorkUnit(round_index=r, unit_index=0, task_ids=(1, 2, 3), split="train", seed=r, policy_version=0)
+        unit = WorkUnit(round_index=r, unit_index=0, task_ids=tuple(task_ids), split="train", seed=r, policy_version=0)
         attempts = worker.collect(unit.task_ids, unit.split, seed=unit.seed, round_index=r)
         commit_round(root, r, [writer.write_unit(unit, attempts, worker_id="w")])
     return BufferReader(root).load_training_view(trajectory_stride=get_domain("multiroom").trajectory_stride)
@@ -195,8 +195,38 @@ def test_encoder_health_counts_dead_units_and_the_round_line_warns_of_a_dead_enc
     assert instruction.constant and not instruction.output_dead and instruction.dead_units >= 16
     warned = format_round(dataclasses.replace(m, encoder_health=(instruction,)))
     assert "every unit of a hidden layer of the instruction encoder is dead" in warned
-    mivoa = build_model(get_domain("multiroom"), "mivoa", seed=0)
-    assert encoder_health(mivoa, cond) == ()
+
+
+def test_mivoa_health_counts_constant_lstm_units_and_a_mivoa_round_records_it(tmp_path):
+    """MIVOA's LSTM has no never-positive units: a unit of its instruction vector is dead when it is
+    the same for every instruction of the probe, and the vector dead whole is a dead layer."""
+    from learner.driver import RoundMetrics, format_round
+    from learner.health import encoder_health
+
+    tv = TensorView.from_view(_view(tmp_path, task_ids=(1, 40, 200, 700)), previous_steps=True)  # 4 instructions
+    mivoa = Learner(build_model(get_domain("multiroom"), "mivoa", seed=0), _cfg())
+    stats = mivoa.train_round(tv)
+    (health,) = stats.encoder_health
+    hidden = get_domain("multiroom").model_sizes.instruction_mlp[-1]
+    assert (health.encoder, health.units, health.output_units) == ("instruction", hidden, hidden)
+    assert health.dead_units < hidden and not health.constant
+    cond = tv.batch(torch.arange(tv.num_states))[2]
+    with torch.no_grad():  # the output gate shut for every word: h = o * tanh(c) = 0 whatever the words
+        lstm = mivoa.model.instruction.lstm
+        lstm.weight_ih_l0[3 * hidden:].zero_()
+        lstm.weight_hh_l0[3 * hidden:].zero_()
+        lstm.bias_ih_l0[3 * hidden:].fill_(-1e4)
+    (dead,) = encoder_health(mivoa.model, cond)
+    assert dead.dead_units == hidden and dead.output_dead and dead.constant and dead.dead_layers == 1
+    with torch.no_grad():  # one unit's output gate open again: that unit varies, the others stay dead
+        lstm.bias_ih_l0[3 * hidden].fill_(0.0)
+        lstm.weight_ih_l0[3 * hidden].normal_()
+    (one,) = encoder_health(mivoa.model, cond)
+    assert one.dead_units == hidden - 1 and not one.constant
+    m = RoundMetrics(round_index=0, collected_tuples=10, failed_tasks=(), collection_seconds=1.0, load_seconds=0.1,
+                     completion_by_corrections=(0.1,), buffer_tuples=10, loss=1.0, accuracy=0.5, train_seconds=1.0,
+                     train_steps=1, correction_spread=None, encoder_health=(dead,))
+    assert f"all {hidden} output units of the instruction encoder are dead" in format_round(m)
 
 
 @pytest.mark.parametrize("domain_name,tasks,end_aligned", [("multiroom", (1, 2, 3), False), ("relocation", (0, 7), True),

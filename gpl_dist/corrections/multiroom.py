@@ -40,6 +40,9 @@ Kinds (``make_multiroom_corrector(kind)``):
   - k = 3, 4: holding the true object -> right/wrong room w.r.t. the goal room; holding a decoy
     -> "you have the wrong object"; empty hands -> "you do not have the object".
 - ``"all"``: one of subgoal / directional / binary, uniformly with ``rng``.
+- ``"retry"`` (the retry control): ``RETRY_TEXT``, the same sentence after every attempt, whatever
+  it did. A policy trained with it still sees its earlier trajectories, so its gain over attempts
+  is what retrying alone buys; set against GPL's, it separates retrying from what the correction says.
 - ``"reward"`` (the GPR variant): the attempt's outcome in words, ``"reward <n> of five"`` with
   ``n`` in zero..five the number of subgoals completed (= 5 x completion).
 
@@ -141,6 +144,15 @@ def reward_correction(env: Any) -> Correction:
     return Correction(f"reward {_NUMBERS[min(k, 5)]} of five", "reward")
 
 
+#: The retry control's one sentence (words of the domain's vocabulary, so no model's shapes change).
+RETRY_TEXT = "you are not done"
+
+
+def retry_correction(env: Any) -> Correction:
+    """The same sentence after every attempt (module docstring: ``retry``): it says nothing of the attempt."""
+    return Correction(RETRY_TEXT, "retry")
+
+
 def full_information(env: Any) -> str:
     """Every subgoal of the task's plan, joined by ``then``."""
     u = getattr(env, "unwrapped", env)
@@ -156,6 +168,7 @@ class MultiRoomCorrector:
         "binary": binary_correction,
         "reward": reward_correction,
         "subgoal_goal_room_apart": subgoal_goal_room_apart_correction,
+        "retry": retry_correction,
     }
 
     def __init__(self, kind: str = "default"):
@@ -187,7 +200,7 @@ def phrasings() -> tuple[str, ...]:
     directional = [f"{thing} is {d}" for thing in _THINGS for d in _COMPASS]
     binary = ["you are in the right room", "you are in the wrong room", "you have the wrong object",
               "you have the right object", "you do not have the object"]
-    return (*subgoal, *directional, *binary, DONE_TEXT)
+    return (*subgoal, *directional, *binary, DONE_TEXT, RETRY_TEXT)
 
 
 def make_multiroom_corrector(kind: str = "default") -> MultiRoomCorrector:

@@ -18,7 +18,9 @@ the probabilities of the authors' code):
 
 ``kind``: ``default`` / ``mixed`` (the rules above), or a single type for tests and ablations:
 ``directional``, ``relational`` (the three relational forms in proportion 2:2:1), ``touch``.
-``reward`` is the GPR variant (see ``reward_text``).
+``reward`` is the GPR variant (see ``reward_text``). ``retry`` is the retry control: ``RETRY_TEXT``,
+the same sentence after every attempt whatever it did, so a policy trained with it gains over
+attempts from retrying alone (set against GPL's gain, it separates retrying from what is said).
 
 ``full_information(env)``: which block and the exact target, digits spelled out so the shared
 tokenizer reads them: ``"move red to x zero point nine three y minus zero point four one"``
@@ -48,6 +50,8 @@ from gpl_dist.records import Correction
 TOUCH_MIN_MOVE = 0.03
 A_LITTLE = 0.3
 KINDS = CORRECTION_KINDS  # declared with the domain
+#: The retry control's one sentence (words of the domain's vocabulary, so no model's shapes change).
+RETRY_TEXT = "move the block"
 
 
 def _state(env: Any):
@@ -134,6 +138,8 @@ class RelocationCorrector:
             return _relational(env, 0.5 * rng.random())
         if kind == "reward":
             return Correction(reward_text(env), "reward")
+        if kind == "retry":
+            return Correction(RETRY_TEXT, "retry")
         # default / mixed
         if touch_needed(env):
             return Correction(touch_text(env), "touch")
@@ -153,7 +159,7 @@ def phrasings() -> tuple[str, ...]:
     return (*(f"Touch the {c} block" for c in MOVABLE_COLORS),
             *(f"Move {amount} {d}" for amount in ("a little", "a lot") for d in DIRECTION_PHRASES),
             *(f"Move {d} of the {c} block" for c in FIXED_COLORS for d in DIRECTION_PHRASES),
-            *(f"Move closer to the {c} block" for c in FIXED_COLORS))
+            *(f"Move closer to the {c} block" for c in FIXED_COLORS), RETRY_TEXT)
 
 
 def make_relocation_corrector(kind: str = "default") -> RelocationCorrector:

@@ -98,10 +98,13 @@ PARAPHRASES = Paraphrases((
         "you do not carry the object", "you are holding no object")),
     ParaphraseRule(r"you are done", (
         "you are done", "well done", "the task is done", "the task is well done", "done well")),
+    ParaphraseRule(r"you are not done", (  # the retry control's one sentence; no new words
+        "you are not done", "the task is not done", "not done", "you are not done with the task",
+        "the task is not well done")),
 ))
 
 #: Correction oracle kinds (``gpl_dist.corrections.multiroom``): ``default`` is the paper's subgoal oracle.
-CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward", "subgoal_goal_room_apart")
+CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "reward", "subgoal_goal_room_apart", "retry")
 
 #: (colour, shape) combinations held out by the ``heldout_*`` splits (paper Table 5).
 HELDOUT_OBJECTS = (("green", "triangle"), ("red", "ball"))

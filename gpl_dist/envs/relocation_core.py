@@ -99,10 +99,12 @@ PARAPHRASES = Paraphrases((
     ParaphraseRule(r"move " + _DIR + r" of the (?P<c>\w+) block", (
         "Move {d} of the {c} block", "go {d} of the {c} block", "push it to the {d} of the {c} block",
         "push it {d} of the {c} block", "go to the {d} of the {c} block")),
+    ParaphraseRule(r"move the block", (  # the retry control's one sentence; no new words
+        "move the block", "push the block", "move it", "push it", "go push it")),
 ))
 
 #: Correction oracle kinds (``gpl_dist.corrections.relocation``): ``default`` is the paper's mixed oracle.
-CORRECTION_KINDS = ("default", "mixed", "directional", "relational", "touch", "reward")
+CORRECTION_KINDS = ("default", "mixed", "directional", "relational", "touch", "reward", "retry")
 
 
 def direction_phrase(dx: float, dy: float) -> str:

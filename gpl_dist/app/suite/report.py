@@ -132,6 +132,14 @@ PAPER_TABLES = (
         PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, _gpl("relocation")),
         PaperRow("Relocation GPR", "relocation-gpr", "test", _C05, (None,) * 6),
     )),
+    PaperTable("retry", "The retry control (not in the paper): GPL trained and tested with one fixed, uninformative "
+               "sentence after every attempt (env.correction_kind retry), so it still sees its earlier trajectories; "
+               "its gain over attempts is what retrying alone buys, GPL's gain above it what the corrections say", _C05, (
+        PaperRow("Multi-room GPL", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
+        PaperRow("Multi-room retry control", "multiroom-retry", "test", _C05, (None,) * 6),
+        PaperRow("Relocation GPL", "relocation-gpl", "test", _C05, _gpl("relocation")),
+        PaperRow("Relocation retry control", "relocation-retry", "test", _C05, (None,) * 6),
+    )),
     PaperTable("paraphrases", "Paraphrased language (not in the paper): GPL meta-tested with the oracle's own "
                "sentences and with held-out phrasings (new sentences of training words), trained with the canonical "
                "phrasings or with the training paraphrases (model.paraphrases)", _C05, (
