@@ -207,6 +207,16 @@ def cmd_suite_report(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_suite_curves(args: argparse.Namespace) -> int:
+    """``gpl-dist suite curves``: each trained run's valid-split completion after every DAgger round."""
+    from gpl_dist.app.suite.curves import compute_curves
+
+    seeds = {int(s) for s in _names(args.seeds)} if args.seeds else None
+    written = compute_curves(args.suite_out, set(_names(args.only)) if args.only else None, seeds)
+    print(f"{len(written)} run(s) have their valid curve (curve-valid.json); the report draws them")
+    return 0
+
+
 def cmd_suite_restore(args: argparse.Namespace) -> int:
     """``gpl-dist suite restore``: copy a report's archived runs into a suite output that lacks them."""
     from gpl_dist.app.suite.archive import restore_runs
@@ -412,6 +422,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("suite_out", help="the suite's folder of run dirs")
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
     q.set_defaults(func=cmd_suite_report)
+    q = suite_sub.add_parser("curves", help="each trained run's valid-split completion after every round "
+                             "(its per-round weights; resumes, skips finished curves)")
+    q.add_argument("suite_out", help="the suite's folder of run dirs")
+    q.add_argument("--only", help="comma-separated entry names")
+    q.add_argument("--seeds", help="comma-separated training seeds")
+    q.set_defaults(func=cmd_suite_curves)
     q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
                              "where 'suite run' then skips them")
     q.add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")

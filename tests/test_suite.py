@@ -144,10 +144,17 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     for table in PAPER_TABLES:
         for row in table.rows:
             assert f"| {row.label} |" in md
-    # GPL's c1 cell is the mean and sd over training seeds of each run's eval.json completion
+    # GPL's c1 cell is the mean over training seeds of each run's eval.json completion, ± its 95 % t
+    # interval's half-width (t(0.975, 1) = 12.706), and where the paper's 0.46 lies against it
     per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
     gpl_row = next(line for line in md.splitlines() if line.startswith("| GPL |"))
-    assert f"{statistics.fmean(per_seed):.3f} ± {statistics.stdev(per_seed):.3f} (0.46)" in gpl_row
+    mean, half = statistics.fmean(per_seed), 12.7062047 * statistics.stdev(per_seed) / 2 ** 0.5
+    where = "" if mean - half <= 0.46 <= mean + half else f"; ours {'above' if mean - half > 0.46 else 'below'}"
+    assert f"{mean:.3f} ± {half:.3f} (0.46{where})" in gpl_row
+    for section in ("## Comparisons", "## Budgets", "## Learning curves", "## Run health", "## Per training seed"):
+        assert section in md
+    health = md.split("## Run health", 1)[1].split("\n## ", 1)[0]
+    assert "`runs/multiroom-gpl/seed0`" in health and "3 runs; 0 not valid" in health
     assert gpl_row.endswith("| 2 training seed(s): 0, 1; not run yet: 2 |")  # the suite file's seed 2 is missing
     assert "not in the paper either" in md and "| No trajectory |" in md
     no_trajectory_row = next(line for line in md.splitlines() if line.startswith("| No trajectory |"))
@@ -156,7 +163,8 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     assert [line for line in not_run.splitlines() if line.startswith("- ")] == [
         "- `multiroom-gpl`: training seed(s) 2", "- `multiroom-no-trajectory`: training seed(s) 0"]
     effort = json.loads((out / "multiroom-gpl" / "seed0" / "eval.json").read_text())["correction_effort"]
-    effort_row = next(line for line in md.splitlines() if line.startswith("| multiroom-gpl |"))
+    effort_md = md.split("## Correction effort", 1)[1].split("\n## ", 1)[0]
+    effort_row = next(line for line in effort_md.splitlines() if line.startswith("| multiroom-gpl |"))
     auc = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["correction_effort"]["completion_auc"]
            for s in (0, 1)]
     assert f"{statistics.fmean(auc):.3f}" in effort_row and effort["unsolved_fraction"] >= 0
@@ -320,3 +328,33 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
     # a fresh folder, predicted from the finished one
     fresh = predict(suite, tmp_path / "fresh", {}, measured_in=out)
     assert len(fresh.runs) == 3 and fresh.total_seconds == pytest.approx(3 * took)
+
+
+def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive_and_report(tmp_path):
+    from gpl_dist.app.suite.archive import archive_runs
+    from gpl_dist.app.suite.curves import CurveSettings, compute_curve, compute_curves, curve_tasks
+    from gpl_dist.app.suite.evidence import CURVE_FILE, learning_curve
+    from gpl_dist.splits import split_tasks
+    from learner.evaluate import evaluate_policy, load_trained_policy
+
+    path = write_suite(tmp_path / "suite.yaml", {"multiroom-gpl": entry(**{"training.num_rounds": 2})})
+    out = tmp_path / "out"
+    run_suite(load_suite(path), out, serial=True, progress=False)
+    run_dir = out / "multiroom-gpl" / "seed0"
+    settings = CurveSettings(tasks=3, num_corrections=1)
+    tasks = curve_tasks("multiroom", settings)
+    valid = split_tasks("multiroom", "valid")
+    assert len(tasks) == 3 and set(tasks) <= set(valid) and tasks[-1] > valid[len(valid) // 2]  # spread over the split
+    logged: list[str] = []
+    assert compute_curves(out, settings=settings, log=logged.append) == [run_dir / CURVE_FILE]
+    payload = json.loads((run_dir / CURVE_FILE).read_text())
+    assert payload["rounds"] == [0, 1] and len(logged) == 2 and payload["settings"]["split"] == "valid"
+    cfg, model, r = load_trained_policy(run_dir, str(run_dir / "checkpoints" / "round-000000.pt"))
+    again = evaluate_policy(cfg, model, num_corrections=1, seeds=(0,), split="valid", tasks=tasks)
+    assert r == 0 and payload["completion"][0] == again.completion  # each point is that round's weights on valid
+    compute_curve(run_dir, settings, log=logged.append)
+    assert len(logged) == 2  # a finished curve is not computed again
+    curve = learning_curve(run_dir)
+    assert curve.valid_rounds == (0, 1) and len(curve.train) == 2
+    archive_runs(out, tmp_path / "archive")
+    assert (tmp_path / "archive" / "multiroom-gpl" / "seed0" / CURVE_FILE).is_file()

@@ -29,6 +29,8 @@ from gpl_dist.errors import RunDirError
 
 #: A run's files the archive keeps, beside the evaluation files its record names.
 RUN_FILES = ("suite-run.json", "config.yaml", "metrics.jsonl", "checkpoints/latest.pt")
+#: Files kept when the run has them: its valid learning curve (``gpl_dist.app.suite.curves``).
+OPTIONAL_RUN_FILES = ("curve-valid.json",)
 
 
 def _evaluated_runs(suite_out: Path) -> list[Path]:
@@ -51,7 +53,7 @@ def _run_files(run_dir: Path) -> list[Path]:
     for name in names:
         if not (run_dir / name).is_file():
             raise RunDirError(f"{run_dir / name} is missing: the run is not complete enough to archive")
-    return [Path(n) for n in names]
+    return [Path(n) for n in names + [o for o in OPTIONAL_RUN_FILES if (run_dir / o).is_file()]]
 
 
 def _copy(src: Path, dst: Path) -> None:

@@ -25,10 +25,12 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.app.suite.archive import archive_runs
+from gpl_dist.app.suite.evidence import RunBudget, RunHealth, learning_curve, run_budget, run_health
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.runs import RECORD_VERSION
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
+from gpl_dist.app.suite.stats import MeanCI, Welch, mean_ci, welch
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 
@@ -170,18 +172,38 @@ class RunResult:
     eval_seconds: float
     effort: dict | None = None
     """The evaluation's ``correction_effort`` (``learner.evaluate.CorrectionEffort``), None in older files."""
+    success: tuple[float, ...] = ()
+    """Fraction of tasks solved after k corrections (over the evaluation's seeds); () in older files."""
 
 
 @dataclass(frozen=True)
 class Cell:
-    """A table cell: mean and standard deviation over training seeds."""
+    """A table cell: the mean over training seeds with its 95 % t interval (``stats.mean_ci``)."""
 
-    mean: float
-    std: float | None
-    n: int
+    ci: MeanCI
+
+    @property
+    def mean(self) -> float:
+        return self.ci.mean
+
+    @property
+    def std(self) -> float | None:
+        return self.ci.sd
+
+    @property
+    def n(self) -> int:
+        return self.ci.n
 
     def text(self) -> str:
-        return f"{self.mean:.3f}" if self.std is None else f"{self.mean:.3f} ± {self.std:.3f}"
+        """``0.912 ± 0.063`` (± the interval's half-width), or the one seed's value."""
+        return f"{self.mean:.3f}" if self.ci.half_width is None else f"{self.mean:.3f} ± {self.ci.half_width:.3f}"
+
+    def against(self, paper: float | None) -> str:
+        """The paper's number, and which way ours lies when the paper's is outside our interval."""
+        if paper is None:
+            return "-"
+        where = self.ci.relation(paper)
+        return f"{paper}" if where in ("inside", "unknown") else f"{paper}; ours {where}"
 
 
 def collect_results(suite_out: str | Path) -> list[RunResult]:
@@ -199,11 +221,12 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
         for name, ev in record.get("evaluations", {}).items():
             payload = _read_json(run_dir / ev["file"])
             recorded = {**EVAL_DEFAULTS, **ev["settings"]}  # a setting added later: its default
-            settings = tuple((k, tuple(v) if isinstance(v, list) else v) for k, v in recorded.items())
+            settings = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in recorded.items()))
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
                                      tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),
-                                     float(ev.get("seconds", 0.0)), payload.get("correction_effort")))
+                                     float(ev.get("seconds", 0.0)), payload.get("correction_effort"),
+                                     tuple(float(x) for x in payload.get("success") or ())))
     _check_same_settings(results)
     return results
 
@@ -229,12 +252,26 @@ def _check_same_settings(results: list[RunResult]) -> None:
                               f"({dict(r.settings)} vs {dict(first.settings)}): the suite file changed between runs")
 
 
-def cell(results: list[RunResult], entry: str, evaluation: str, k: int) -> Cell | None:
-    """Completion after ``k`` corrections of ``entry``'s ``evaluation``, over its training seeds."""
-    values = [r.completion[k] for r in results if r.entry == entry and r.evaluation == evaluation and k < len(r.completion)]
-    if not values:
-        return None
-    return Cell(statistics.fmean(values), statistics.stdev(values) if len(values) > 1 else None, len(values))
+def seed_values(results: list[RunResult], entry: str, evaluation: str, k: int, measure: str = "completion") -> list[float]:
+    """Each training seed's ``measure`` (completion or success) after ``k`` corrections."""
+    return [getattr(r, measure)[k] for r in results
+            if r.entry == entry and r.evaluation == evaluation and k < len(getattr(r, measure))]
+
+
+def cell(results: list[RunResult], entry: str, evaluation: str, k: int, measure: str = "completion") -> Cell | None:
+    """``measure`` after ``k`` corrections of ``entry``'s ``evaluation``, over its training seeds."""
+    values = seed_values(results, entry, evaluation, k, measure)
+    return Cell(mean_ci(values)) if values else None
+
+
+def healthy(results: list[RunResult], health: dict[Path, RunHealth]) -> list[RunResult]:
+    """The results of runs that pass the health gate (``evidence.RunHealth.valid``): every mean is over these."""
+    return [r for r in results if health[r.run_dir].valid]
+
+
+def health_of(results: list[RunResult]) -> dict[Path, RunHealth]:
+    """Each result's run's ``RunHealth``."""
+    return {d: run_health(d) for d in sorted({r.run_dir for r in results})}
 
 
 def _row_cells(results: list[RunResult], table: PaperTable, row: PaperRow) -> list[tuple[Cell | None, float | None] | None]:
@@ -267,14 +304,17 @@ def planned_seeds(suite_yaml: Path) -> dict[str, tuple[int, ...]]:
             for name, spec in entries.items()}
 
 
-def _status(results: list[RunResult], row: PaperRow, planned: dict[str, tuple[int, ...]]) -> str:
+def _status(results: list[RunResult], row: PaperRow, planned: dict[str, tuple[int, ...]],
+            excluded: list[RunResult] | None = None) -> str:
     if row.entry is None:
         return row.note
     seeds = _seeds_of(results, row)
-    missing = [s for s in planned.get(row.entry, ()) if s not in seeds]
+    out = sorted({r.seed for r in excluded or () if r.entry == row.entry and r.evaluation == row.evaluation})
+    missing = [s for s in planned.get(row.entry, ()) if s not in seeds and s not in out]
+    dropped = f"; not valid (a layer dead at the final round), left out: {', '.join(map(str, out))}" if out else ""
     if not seeds:
-        return "not run yet"
-    done = f"{len(seeds)} training seed(s): {', '.join(map(str, seeds))}"
+        return ("not run yet" if not out else "no valid run") + dropped
+    done = f"{len(seeds)} training seed(s): {', '.join(map(str, seeds))}" + dropped
     return f"{done}; not run yet: {', '.join(map(str, missing))}" if missing else done
 
 
@@ -288,11 +328,14 @@ _NOT_RUN_INTRO = ("Runs of the suite file (its latest copy, `runs/suite.yaml`) t
                   "(`gpl-dist suite run SUITE --out OUT --only ENTRY --seeds S`):")
 
 
-def table_markdown(results: list[RunResult], table: PaperTable, planned: dict[str, tuple[int, ...]]) -> str:
-    """One table: a row per paper row, each cell 'ours (paper)'; ``planned``: each entry's training
-    seeds in the suite file (``planned_seeds``), for the seeds not run yet."""
+def table_markdown(results: list[RunResult], table: PaperTable, planned: dict[str, tuple[int, ...]],
+                   excluded: list[RunResult] | None = None) -> str:
+    """One table: a row per paper row, each cell 'ours (paper)', and the success rates beside;
+    ``results``: the healthy runs' (``healthy``), ``excluded``: the others'; ``planned``: each
+    entry's training seeds in the suite file (``planned_seeds``), for the seeds not run yet."""
     head = "| method | " + " | ".join(f"c{k}" for k in table.columns) + " | runs |"
-    lines = [f"**{table.caption}.** Each cell: ours, mean ± sd over training seeds (paper).", "", head,
+    lines = [f"**{table.caption}.** Each cell: ours, mean over training seeds ± the half-width of its 95 % "
+             "t interval (paper; where the paper's number lies outside our interval, which way ours lies).", "", head,
              "|" + "---|" * (len(table.columns) + 2)]
     for row in table.rows:
         cells = []
@@ -301,41 +344,218 @@ def table_markdown(results: list[RunResult], table: PaperTable, planned: dict[st
                 cells.append("")
                 continue
             ours, paper = c
-            cells.append(f"{ours.text() if ours else '—'} ({'-' if paper is None else paper})")
-        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row, planned)} |")
+            cells.append(f"{ours.text()} ({ours.against(paper)})" if ours else f"— ({'-' if paper is None else paper})")
+        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {_status(results, row, planned, excluded)} |")
+    return "\n".join(lines)
+
+
+def success_markdown(results: list[RunResult], table: PaperTable) -> str:
+    """The table's success rates (fraction of tasks solved after k corrections), the same runs as
+    ``table_markdown``'s completion."""
+    lines = ["Success rate (tasks solved), the same runs, mean ± 95 % half-width:", "",
+             "| method | " + " | ".join(f"c{k}" for k in table.columns) + " | training seeds |",
+             "|" + "---|" * (len(table.columns) + 2)]
+    for row in table.rows:
+        cells = []
+        for k in table.columns:
+            ours = cell(results, row.entry, row.evaluation, k, "success") if row.entry and k in row.columns else None
+            cells.append("" if k not in row.columns else ours.text() if ours else "—")
+        lines.append(f"| {row.label} | " + " | ".join(cells) + f" | {len(_seeds_of(results, row)) if row.entry else ''} |")
     return "\n".join(lines)
 
 
 def plot_table(results: list[RunResult], table: PaperTable, path: Path) -> bool:
-    """Completion against corrections for the table's rows with a curve (ours solid with the
-    training-seed band, paper dashed); False when no row has more than one column."""
-    rows = [r for r in table.rows if len(r.columns) > 1]
-    if not rows:
+    """Completion against corrections for the table's rows (ours solid with the band of the 95 %
+    interval over training seeds, the paper's dashed where it has numbers; a row without
+    corrections, a baseline, as a level line across); False when no row has more than one column."""
+    if not any(len(r.columns) > 1 for r in table.rows):
         return False
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5.5, 3.6), dpi=110)
-    for i, row in enumerate(rows):
+    fig, ax = plt.subplots(figsize=(7.2, 3.6), dpi=110)
+    span = (min(table.columns), max(table.columns))
+    for i, row in enumerate(table.rows):
         color = f"C{i}"
-        ax.plot(row.columns, [p if p is not None else float("nan") for p in row.paper], "--", color=color, alpha=0.7,
-                label=f"{row.label} (paper)")
+        flat = len(row.columns) == 1
+        if any(p is not None for p in row.paper):
+            xs = span if flat else row.columns
+            ys = [float("nan") if p is None else p for p in ((row.paper[0],) * 2 if flat else row.paper)]
+            ax.plot(xs, ys, ":" if flat else "--", color=color, alpha=0.7, label=f"{row.label} (paper)")
         cells = [cell(results, row.entry, row.evaluation, k) if row.entry else None for k in row.columns]
-        if any(c is not None for c in cells):
-            ks = [k for k, c in zip(row.columns, cells) if c is not None]
-            means = [c.mean for c in cells if c is not None]
-            sds = [c.std or 0.0 for c in cells if c is not None]
-            ax.plot(ks, means, "o-", color=color, label=f"{row.label} (ours)")
-            ax.fill_between(ks, [m - s for m, s in zip(means, sds)], [m + s for m, s in zip(means, sds)], color=color, alpha=0.15)
+        if not any(c is not None for c in cells):
+            continue
+        ks = [k for k, c in zip(row.columns, cells) if c is not None]
+        means = [c.mean for c in cells if c is not None]
+        half = [c.ci.half_width or 0.0 for c in cells if c is not None]
+        if flat:
+            ks, means, half = list(span), means * 2, half * 2
+        seeds = max(c.n for c in cells if c is not None)
+        ax.plot(ks, means, "-" if flat else "o-", color=color, label=f"{row.label} (ours, {seeds} seeds)")
+        ax.fill_between(ks, [m - h for m, h in zip(means, half)], [m + h for m, h in zip(means, half)], color=color, alpha=0.15)
     ax.set_xlabel("corrections")
     ax.set_ylabel("completion")
     ax.set_ylim(0, 1)
     ax.set_xticks(table.columns)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="lower right")
-    ax.set_title(table.caption.split(":")[0].split(",")[0] + (", " + table.key.split("-")[1] if "-" in table.key else ""),
-                 fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), title="band: 95 % interval", title_fontsize=7)
+    ax.set_title(_heading(table), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return True
+
+
+def _heading(table: PaperTable) -> str:
+    """The table's caption up to its first colon or comma, with the domain where the key names one."""
+    head = table.caption.split(":")[0].split(",")[0]
+    return head + (", " + table.key.split("-")[1] if "-" in table.key else "")
+
+
+def health_markdown(health: dict[Path, RunHealth], report_dir: Path) -> str:
+    """Every run's conditioning encoders at its final round (dead / units per encoder: i
+    instruction, c correction, t trajectory, p pair) and the rounds any layer of them was dead
+    whole; a run dead at its final round is not valid and is out of every mean."""
+    lines = ["| run | rounds | final round: dead units; layers dead whole | valid |", "|---|---|---|---|"]
+    for run_dir, h in health.items():
+        where = run_dir.relative_to(report_dir) if run_dir.is_relative_to(report_dir) else run_dir
+        valid = "yes" if h.valid and h.instrumented else "yes (not instrumented)" if h.valid else "**no**"
+        lines.append(f"| `{where}` | {h.rounds} | {h.text()} | {valid} |")
+    bad = sum(not h.valid for h in health.values())
+    lines.append(f"\n{len(health)} runs; {bad} not valid; "
+                 f"{sum(bool(h.dead_layers) for h in health.values())} with a layer dead whole in some round; "
+                 f"{sum(not h.instrumented for h in health.values())} not instrumented.")
+    return "\n".join(lines)
+
+
+def per_seed_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> str:
+    """Each entry's evaluations, one line a training seed: completion after each k, success after
+    the first and the last, and whether the run is valid."""
+    lines = ["| entry | evaluation | seed | completion c0 .. cK | success c0, cK | valid |", "|---|---|---|---|---|---|"]
+    for r in sorted(results, key=lambda r: (r.entry, r.evaluation, r.seed)):
+        comp = " ".join(f"{x:.3f}" for x in r.completion)
+        succ = f"{r.success[0]:.3f}, {r.success[-1]:.3f}" if r.success else "—"
+        lines.append(f"| {r.entry} | {r.evaluation} | {r.seed} | {comp} | {succ} | "
+                     f"{'yes' if health[r.run_dir].valid else '**no**'} |")
+    return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """One ordering the report tests: ``entry`` after ``k`` corrections against ``other`` after ``other_k``."""
+
+    label: str
+    entry: str
+    evaluation: str
+    k: int
+    other: str
+    other_evaluation: str
+    other_k: int
+    gain: bool = False
+    """Compare gains over attempts (after k minus before any) instead of levels."""
+
+
+def _comparisons() -> tuple[Comparison, ...]:
+    """Each row of the paper's tables against its table's GPL row of the same domain and
+    evaluation (GPL after the table's last column against the row's last column), and the retry
+    control's gain over attempts against GPL's."""
+    out: dict[tuple, Comparison] = {}
+    for table in PAPER_TABLES:
+        for row in table.rows:
+            if row.entry is None or row.entry.endswith("-gpl"):
+                continue
+            domain = row.entry.split("-")[0] + "-"
+            gpl = next((g for g in table.rows if g.entry and g.entry.endswith("-gpl") and g.entry.startswith(domain)
+                        and g.evaluation == row.evaluation), None)
+            if gpl is None or gpl.entry is None:
+                continue
+            for gain in (False, True) if table.key == "retry" else (False,):
+                c = Comparison(f"{_heading(table)}: GPL c{gpl.columns[-1]} vs {row.label} c{row.columns[-1]}"
+                               + (", gain over c0" if gain else ""), gpl.entry, gpl.evaluation, gpl.columns[-1],
+                               row.entry, row.evaluation, row.columns[-1], gain)
+                out.setdefault((c.entry, c.evaluation, c.k, c.other, c.other_evaluation, c.other_k, gain), c)
+    return tuple(out.values())
+
+
+def _values(results: list[RunResult], entry: str, evaluation: str, k: int, gain: bool) -> list[float]:
+    runs = [r for r in results if r.entry == entry and r.evaluation == evaluation and k < len(r.completion)]
+    return [r.completion[k] - r.completion[0] if gain else r.completion[k] for r in sorted(runs, key=lambda r: r.seed)]
+
+
+def comparisons_markdown(results: list[RunResult]) -> str:
+    """Welch's t-test (two-sided, p < 0.05) of every ``_comparisons`` pair with runs on both sides."""
+    lines = ["| comparison | GPL (mean, seeds) | other (mean, seeds) | difference | Welch t | df | p | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    for c in _comparisons():
+        a = _values(results, c.entry, c.evaluation, c.k, c.gain)
+        b = _values(results, c.other, c.other_evaluation, c.other_k, c.gain)
+        if not a or not b:
+            continue
+        w: Welch = welch(a, b)
+        lines.append(f"| {c.label} | {statistics.fmean(a):.3f} ({len(a)}) | {statistics.fmean(b):.3f} ({len(b)}) | "
+                     f"{w.difference:+.3f} | {_fmt(w.t, '.2f')} | {_fmt(w.df, '.1f')} | {_fmt(w.p, '.3g')} | "
+                     f"{w.verdict('GPL', 'other')} |")
+    return "\n".join(lines)
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "—" if value is None else format(value, spec)
+
+
+def budgets_markdown(results: list[RunResult], report_dir: Path) -> str:
+    """Per entry, mean over its runs: rounds, tuples collected, gradient steps, trained parameters,
+    the learner's and collection's wall time."""
+    runs: dict[str, dict[Path, RunBudget]] = {}
+    for r in results:
+        runs.setdefault(r.entry, {})
+        if r.run_dir not in runs[r.entry]:
+            runs[r.entry][r.run_dir] = run_budget(r.run_dir)
+    lines = ["| entry | runs | rounds | tuples collected | gradient steps | parameters | train min | collect min |",
+             "|---|---|---|---|---|---|---|---|"]
+    for entry in sorted(runs):
+        b = list(runs[entry].values())
+        params = sorted({x.parameters for x in b if x.parameters is not None})
+        tuples = f"{statistics.fmean(x.tuples for x in b):,.0f}" + (
+            "" if all(x.tuples_complete for x in b) else " (≥: a resumed round)")
+        lines.append(f"| {entry} | {len(b)} | {statistics.fmean(x.rounds for x in b):.0f} | {tuples} | "
+                     f"{statistics.fmean(x.gradient_steps for x in b):,.0f} | {', '.join(f'{p:,}' for p in params) or '—'} | "
+                     f"{statistics.fmean(x.train_seconds for x in b) / 60:.1f} | "
+                     f"{statistics.fmean(x.collection_seconds for x in b) / 60:.1f} |")
+    return "\n".join(lines)
+
+
+def plot_curves(results: list[RunResult], domain: str, path: Path) -> bool:
+    """Completion over DAgger rounds of each ``domain`` entry, mean over its runs: on the training
+    tasks during collection (after the last correction), and on the valid split where computed."""
+    entries = sorted({r.entry for r in results if r.entry.startswith(domain + "-")})
+    if not entries:
+        return False
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6), dpi=110, sharey=True)
+    for i, entry in enumerate(entries):
+        curves = [learning_curve(d) for d in sorted({r.run_dir for r in results if r.entry == entry})]
+        for ax, part in zip(axes, ("train", "valid")):
+            series = [(c.rounds if part == "train" else c.valid_rounds, getattr(c, part)) for c in curves]
+            series = [(rs, v) for rs, v in series if v]
+            if not series:
+                continue
+            n = min(len(v) for _, v in series)
+            ys = [statistics.fmean(v[j][-1] for _, v in series) for j in range(n)]
+            ax.plot(series[0][0][:n], ys, "o-", ms=3, color=f"C{i % 10}", ls="-" if i < 10 else "--",
+                    label=f"{entry} ({len(series)})")
+    axes[0].set_title("training tasks, during collection (last attempt)", fontsize=8)
+    axes[1].set_title("valid split, each round's weights (last attempt)", fontsize=8)
+    for ax in axes:
+        ax.set_xlabel("DAgger round")
+        ax.grid(alpha=0.3)
+        ax.set_ylim(0, 1)
+    axes[0].set_ylabel("completion")
+    axes[1].legend(*axes[0].get_legend_handles_labels(), fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0),
+                   title="entry (runs)", title_fontsize=6)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
@@ -401,7 +621,10 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     archive = out / ARCHIVE_DIR
     archive.mkdir(parents=True, exist_ok=True)
     archive_runs(suite_out, archive)
-    results = collect_results(archive)
+    every = collect_results(archive)
+    health = health_of(every)
+    results = healthy(every, health)  # every mean and test is over the valid runs only
+    excluded = [r for r in every if r not in results]
     planned = planned_seeds(archive / "suite.yaml")  # the suite's latest copy: archived from suite_out just above
     parts, html_parts = [_INTRO.format(suite_out=suite_out)], [f"<p>{html.escape(_INTRO_HTML.format(suite_out=suite_out))}</p>"]
     if missing := not_run(results, planned):
@@ -410,15 +633,38 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
         html_parts += ["<h2>Not run yet</h2>", f"<p>{html.escape(_NOT_RUN_INTRO.replace('`', ''))}</p><ul>"
                        + "".join(f"<li>{html.escape(item.replace('`', ''))}</li>" for item in items) + "</ul>"]
     for table in PAPER_TABLES:
-        md = table_markdown(results, table, planned)
+        md = table_markdown(results, table, planned, excluded)
+        success = success_markdown(results, table)
         png = out / f"{table.key}.png"
         has_plot = plot_table(results, table, png)
-        parts += [f"## {table.caption.split(':')[0].split(',')[0]} ({table.key})", md]
-        html_parts += [f"<h2>{html.escape(table.key)}</h2>", _md_table_html(md)]
+        parts += [f"## {_heading(table)}", md, success]
+        html_parts += [f"<h2>{html.escape(_heading(table))}</h2>", _md_table_html(md), _md_table_html(success)]
         if has_plot:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
+    sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), over the valid "
+                 "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results)),
+                ("Budgets", "What each entry's runs spent (mean over its valid runs): the no-correction baselines "
+                 "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
+                ("Run health", "Each run's conditioning encoders at its final round (dead / units: i instruction, "
+                 "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
+                 "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
+                 "every mean above.", health_markdown(health, out)),
+                ("Per training seed", "Each run's own numbers (the mean over its evaluation seeds).",
+                 per_seed_markdown(every, health))]
+    for title, intro, md in sections:
+        parts += [f"## {title}", intro, md]
+        html_parts += [f"<h2>{html.escape(title)}</h2>", f"<p>{html.escape(intro)}</p>", _md_table_html(md)]
+        if title == "Budgets":
+            parts.append("## Learning curves")
+            html_parts.append("<h2>Learning curves</h2>")
+            for domain in sorted({r.entry.split("-")[0] for r in results}):
+                png = out / f"curves-{domain}.png"
+                if plot_curves(results, domain, png):
+                    parts.append(f"![learning curves, {domain}]({png.name})")
+                    data = base64.b64encode(png.read_bytes()).decode()
+                    html_parts.append(f'<img alt="learning curves, {domain}" src="data:image/png;base64,{data}">')
 
     plan = plan_of_copy(archive / "suite.yaml")
     rl_md, rl_png = sample_complexity_section(suite_out, out, read_from=archive, plan=plan)

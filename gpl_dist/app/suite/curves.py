@@ -1,0 +1,119 @@
+"""Learning curves on the valid split: each DAgger round's weights, evaluated (``gpl-dist suite curves``).
+
+A run keeps every round's weights (``checkpoints/round-NNNNNN.pt``) until it is archived, and the
+archive keeps only the last; so the curve is computed from a suite's run dirs, after training, and
+written into each run dir as ``curve-valid.json`` (``evidence.CURVE_FILE``), which the archive
+keeps and the report draws. Whether a baseline was still improving at its last round is read
+here, never on the test split.
+
+The curve is cheaper than the suite's evaluations: ``CURVE_TASKS`` valid tasks spread evenly over
+the split (every k-th, so no block of task ids is favoured), one evaluation seed, the run's own
+number of corrections (5). A run dir's file is filled in round by round, so a killed command
+resumes where it stopped, and a finished curve is not computed again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gpl_dist.app.suite.evidence import CURVE_FILE
+from gpl_dist.errors import RunDirError
+from gpl_dist.splits import split_tasks
+from learner.evaluate import evaluate_policy, load_trained_policy
+
+#: Valid tasks a curve point is measured on (all of a smaller split).
+CURVE_TASKS = 250
+#: Evaluation seeds of a curve point.
+CURVE_SEEDS = (0,)
+#: Corrections at each curve point (the paper's meta-training count).
+CURVE_CORRECTIONS = 5
+
+
+@dataclass(frozen=True)
+class CurveSettings:
+    """What a curve point measures (recorded in the file; a file of other settings is recomputed).
+
+    Attributes:
+        split: the split evaluated.
+        tasks: how many of its tasks, spread evenly.
+        seeds: evaluation seeds.
+        num_corrections: corrections given (baselines without corrections make one attempt).
+    """
+
+    split: str = "valid"
+    tasks: int = CURVE_TASKS
+    seeds: tuple[int, ...] = CURVE_SEEDS
+    num_corrections: int = CURVE_CORRECTIONS
+
+    def to_dict(self) -> dict:
+        return {"split": self.split, "tasks": self.tasks, "seeds": list(self.seeds), "num_corrections": self.num_corrections}
+
+
+def curve_tasks(domain: str, settings: CurveSettings) -> tuple[int, ...]:
+    """``settings.tasks`` tasks of the split, every k-th of its sorted ids."""
+    tasks = split_tasks(domain, settings.split)
+    step = max(1, len(tasks) // settings.tasks)
+    return tuple(tasks[::step][:settings.tasks])
+
+
+def round_checkpoints(run_dir: Path) -> list[Path]:
+    """The run's per-round weights, in round order."""
+    return sorted((run_dir / "checkpoints").glob("round-*.pt"))
+
+
+def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
+    """Fill ``run_dir/curve-valid.json`` with every round's valid completion (resumes a partial
+    file of the same settings); None when the run dir keeps no per-round weights."""
+    run_dir = Path(run_dir)
+    ckpts = round_checkpoints(run_dir)
+    if not ckpts:
+        return None
+    path = run_dir / CURVE_FILE
+    payload: dict[str, Any] = {"settings": settings.to_dict(), "rounds": [], "completion": [], "success": [], "checkpoints": []}
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err}); delete it to recompute") from None
+        if isinstance(old, dict) and old.get("settings") == payload["settings"]:
+            payload = old
+    done = set(payload["checkpoints"])
+    for ckpt in ckpts:
+        if ckpt.name in done:
+            continue
+        cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
+        result = evaluate_policy(cfg, model, num_corrections=settings.num_corrections, seeds=settings.seeds,
+                                 split=settings.split, tasks=curve_tasks(cfg.env.domain, settings))
+        payload["rounds"].append(round_index)
+        payload["completion"].append(result.completion)
+        payload["success"].append(result.success)
+        payload["checkpoints"].append(ckpt.name)
+        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+        tmp.write_text(json.dumps(payload, indent=1))
+        os.replace(tmp, path)
+        log(f"{run_dir}: round {round_index} valid completion "
+            + " ".join(f"c{k}={v:.3f}" for k, v in enumerate(result.completion)))
+    return path
+
+
+def compute_curves(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
+                   settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
+    """``compute_curve`` for every trained run under ``suite_out/<entry>/seed<k>`` (those with a
+    ``suite-run.json``), optionally only ``entries`` and ``seeds``."""
+    root = Path(suite_out)
+    if not root.is_dir():
+        raise RunDirError(f"no suite output at {root}")
+    written = []
+    for record in sorted(root.glob("*/seed*/suite-run.json")):
+        run_dir = record.parent
+        if entries and run_dir.parent.name not in entries:
+            continue
+        if seeds is not None and int(run_dir.name.removeprefix("seed")) not in seeds:
+            continue
+        if (out := compute_curve(run_dir, settings, log)) is not None:
+            written.append(out)
+    return written

@@ -1,0 +1,167 @@
+"""What a run's own files say beside its evaluations: its health, its budget, its learning curve.
+
+Read from an (archived) run dir: ``metrics.jsonl`` (one row a DAgger round, ``learner.driver.RoundMetrics``),
+``checkpoints/latest.pt`` (the final weights) and, where the suite computed it, ``curve-valid.json``
+(valid-split completion after each round, ``gpl_dist.app.suite.curves``).
+
+**Health as a gate.** A run whose conditioning encoder (GPL's, or MIVOA's LSTM) has a layer dead
+whole at its final round acts without that input: a policy blind to its instruction is no
+instruction-only baseline. The report marks such a run as not valid and leaves it out of every
+mean; a run whose rounds recorded no health (trained before MIVOA was instrumented) is kept but
+marked uninstrumented.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from gpl_dist.errors import RunDirError
+from learner.checkpoint import LATEST, load_checkpoint
+from learner.driver import RoundMetrics
+from learner.health import EncoderHealth
+
+#: The file the suite's per-round valid evaluation writes into a run dir.
+CURVE_FILE = "curve-valid.json"
+#: Entries of a state dict that are not trained parameters (BatchNorm's running statistics).
+_NOT_PARAMETERS = ("running_mean", "running_var", "num_batches_tracked")
+
+
+@dataclass(frozen=True)
+class RunHealth:
+    """A run's conditioning encoders over its rounds.
+
+    Attributes:
+        rounds: rounds recorded in ``metrics.jsonl``.
+        instrumented: every round recorded its encoders' health.
+        final: the last round's health, one per encoder.
+        dead_layers: ``(round, encoder)`` for every round and encoder with a layer dead whole.
+    """
+
+    rounds: int
+    instrumented: bool
+    final: tuple[EncoderHealth, ...]
+    dead_layers: tuple[tuple[int, str], ...]
+
+    @property
+    def dead_at_end(self) -> tuple[str, ...]:
+        """Encoders with a layer dead whole at the final round."""
+        return tuple(h.encoder for h in self.final if h.constant)
+
+    @property
+    def valid(self) -> bool:
+        """No layer dead whole at the final round (an uninstrumented run counts as valid, marked so)."""
+        return not self.dead_at_end
+
+    def text(self) -> str:
+        """``i 10/16 c 0/16 ...`` (dead / units per encoder at the final round) and what died whole."""
+        if not self.instrumented and not self.final:
+            return "not instrumented"
+        units = " ".join(f"{h.encoder[0]} {h.dead_units}/{h.units}" for h in self.final)
+        if not self.dead_layers:
+            return f"{units}; no layer dead whole in any round"
+        rounds: dict[str, list[int]] = {}
+        for r, enc in self.dead_layers:
+            rounds.setdefault(enc, []).append(r)
+        died = "; ".join(f"{enc} dead whole in rounds {', '.join(map(str, rs))}" for enc, rs in rounds.items())
+        return f"{units}; {died}" + ("; NOT VALID (dead at the final round)" if not self.valid else "")
+
+
+@dataclass(frozen=True)
+class RunBudget:
+    """What a run spent.
+
+    Attributes:
+        rounds: DAgger rounds trained.
+        tuples: labelled tuples collected over all rounds (those of a round resumed after its
+            collection are not recorded again: then ``tuples_complete`` is False).
+        tuples_complete: every round recorded its collected tuples.
+        gradient_steps: optimiser steps over all rounds.
+        parameters: trained parameters of the final weights (None without a checkpoint).
+        train_seconds: the learner's wall time over all rounds.
+        collection_seconds: collection's wall time over all rounds.
+    """
+
+    rounds: int
+    tuples: int
+    tuples_complete: bool
+    gradient_steps: int
+    parameters: int | None
+    train_seconds: float
+    collection_seconds: float
+
+
+@dataclass(frozen=True)
+class LearningCurve:
+    """Completion after each DAgger round.
+
+    Attributes:
+        rounds: the round indices.
+        train: train-task completion during collection, ``train[i][k]`` after k corrections (the
+            rollouts of round ``i``, with the weights of round ``i - 1``).
+        valid: valid-split completion of each round's weights, ``valid[i][k]``; () when not computed.
+        valid_rounds: the rounds of ``valid``.
+    """
+
+    rounds: tuple[int, ...]
+    train: tuple[tuple[float, ...], ...]
+    valid: tuple[tuple[float, ...], ...] = ()
+    valid_rounds: tuple[int, ...] = ()
+
+
+def read_metrics(run_dir: Path) -> list[RoundMetrics]:
+    """The rounds of ``run_dir/metrics.jsonl`` (the last row of each round: a resumed round is
+    written once more); a damaged row fails in one line naming the file."""
+    path = run_dir / "metrics.jsonl"
+    if not path.is_file():
+        raise RunDirError(f"{path} is missing: the run's health and budget cannot be read")
+    rows: dict[int, RoundMetrics] = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            m = RoundMetrics.from_dict(json.loads(line))
+        except (ValueError, KeyError, TypeError) as err:
+            raise RunDirError(f"{path}:{n}: not a round's metrics ({type(err).__name__}: {err})") from None
+        rows[m.round_index] = m
+    return [rows[r] for r in sorted(rows)]
+
+
+def run_health(run_dir: Path) -> RunHealth:
+    """``RunHealth`` of one run dir."""
+    rounds = read_metrics(run_dir)
+    dead = tuple((m.round_index, h.encoder) for m in rounds for h in m.encoder_health if h.constant)
+    return RunHealth(len(rounds), bool(rounds) and all(m.encoder_health for m in rounds),
+                     rounds[-1].encoder_health if rounds else (), dead)
+
+
+def run_budget(run_dir: Path) -> RunBudget:
+    """``RunBudget`` of one run dir."""
+    rounds = read_metrics(run_dir)
+    ckpt = run_dir / "checkpoints" / LATEST
+    params = None
+    if ckpt.is_file():
+        state = load_checkpoint(ckpt).model_state
+        params = sum(int(v.numel()) for k, v in state.items()
+                     if v.is_floating_point() and not k.endswith(_NOT_PARAMETERS))
+    return RunBudget(len(rounds), sum(m.collected_tuples or 0 for m in rounds),
+                     all(m.collected_tuples is not None for m in rounds), sum(m.train_steps for m in rounds),
+                     params, sum(m.train_seconds for m in rounds), sum(m.collection_seconds for m in rounds))
+
+
+def learning_curve(run_dir: Path) -> LearningCurve:
+    """``LearningCurve`` of one run dir (its valid part from ``CURVE_FILE`` when present)."""
+    rounds = read_metrics(run_dir)
+    valid: tuple[tuple[float, ...], ...] = ()
+    valid_rounds: tuple[int, ...] = ()
+    path = run_dir / CURVE_FILE
+    if path.is_file():
+        try:
+            payload = json.loads(path.read_text())
+            valid_rounds = tuple(int(r) for r in payload["rounds"])
+            valid = tuple(tuple(float(x) for x in c) for c in payload["completion"])
+        except (ValueError, KeyError, TypeError) as err:
+            raise RunDirError(f"{path}: not a learning curve ({type(err).__name__}: {err})") from None
+    return LearningCurve(tuple(m.round_index for m in rounds), tuple(tuple(m.completion_by_corrections) for m in rounds),
+                         valid, valid_rounds)
