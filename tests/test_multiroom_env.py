@@ -12,7 +12,16 @@ import pytest
 
 import gpl_dist  # noqa: F401  (registers the envs)
 from gpl_dist.domains import get_domain
-from gpl_dist.envs.multiroom import DOMAIN, HELDOUT_OBJECTS, MAX_STEPS, VOCABULARY, MultiRoomEnv, make_splits
+from gpl_dist.envs.multiroom import (
+    DOMAIN,
+    HELDOUT4_OBJECTS,
+    HELDOUT_OBJECTS,
+    MAX_STEPS,
+    VOCABULARY,
+    MultiRoomEnv,
+    decoy_overlap,
+    make_splits,
+)
 from gpl_dist.envs.multiroom_core import ITEM_CELLS, NUM_TASKS, XY, get_task
 from gpl_dist.experts.multiroom import distance_map
 from gpl_dist.language import split_words
@@ -318,6 +327,16 @@ def test_splits_file_matches_generator():
     assert splits["heldout_test"] and all(
         (get_task(t).obj_colour, get_task(t).obj_shape) in held for t in splits["heldout_test"])
     assert len(splits["heldout_test"]) == 180 * len(HELDOUT_OBJECTS)
+    # version 2: the harder Table 5 adds splits and keeps every earlier one as it was
+    assert stored["version"] == 2 and len(HELDOUT4_OBJECTS) == 4 and set(HELDOUT_OBJECTS) <= set(HELDOUT4_OBJECTS)
+    held4 = set(HELDOUT4_OBJECTS)
+    seen = set(splits["heldout4_train"]) | set(splits["heldout4_indist_test"])
+    assert len(splits["heldout4_indist_test"]) == 250 and not set(splits["heldout4_train"]) & set(splits["heldout4_indist_test"])
+    assert all(not any((o.colour, o.shape) in held4 for o in get_task(t).objects) for t in seen)
+    assert len(seen) == sum(not any((o.colour, o.shape) in held4 for o in get_task(t).objects) for t in range(NUM_TASKS))
+    assert splits["heldout4_test"] == [t for t in range(NUM_TASKS) if (get_task(t).obj_colour, get_task(t).obj_shape) in held4]
+    colour, shape = decoy_overlap(splits["heldout4_test"])
+    assert 0 < colour < 1 and 0 < shape < 1
     # the paper's condition: no test task's subgoal list appears in training
     train_lists = {MultiRoomEnv(t).subgoal_texts for t in splits["train"]}
     assert not any(MultiRoomEnv(t).subgoal_texts in train_lists for t in splits["test"])

@@ -358,3 +358,21 @@ def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive
     assert curve.valid_rounds == (0, 1) and len(curve.train) == 2
     archive_runs(out, tmp_path / "archive")
     assert (tmp_path / "archive" / "multiroom-gpl" / "seed0" / CURVE_FILE).is_file()
+    # choose on valid, report on test: training rolled out train tasks only, the curve valid tasks only
+    import pyarrow.dataset as ds
+
+    trained = set(ds.dataset(run_dir / "buffer" / "data" / "attempts").to_table(columns=["task_id"])["task_id"].to_pylist())
+    test = set(split_tasks("multiroom", "test"))
+    assert trained and trained <= set(split_tasks("multiroom", "train")) and not trained & test
+    assert not set(tasks) & test
+
+
+def test_model_selection_reads_the_valid_split_only():
+    """The recipe suite (every design choice) evaluates on the valid split, never on a test split."""
+    from gpl_dist.app.suite.spec import plan
+
+    recipe = load_suite(Path(__file__).resolve().parents[1] / "configs" / "suites" / "recipe.yaml")
+    assert recipe.evaluations and {ev.config.split for ev in recipe.evaluations.values()} == {"valid"}
+    for run in plan(recipe, "unused"):
+        cfg = run.config(recipe)
+        assert cfg.eval.split == "valid" and "test" not in cfg.env.train_split, run.entry.name

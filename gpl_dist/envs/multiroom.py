@@ -108,6 +108,12 @@ CORRECTION_KINDS = ("default", "subgoal", "directional", "binary", "all", "rewar
 
 #: (colour, shape) combinations held out by the ``heldout_*`` splits (paper Table 5).
 HELDOUT_OBJECTS = (("green", "triangle"), ("red", "ball"))
+#: The harder Table 5 (split file version 2): 4 of the 18 (colour, shape) combinations held out by
+#: the ``heldout4_*`` splits, chosen once: the two above and two more of other colours, so every
+#: shape and four colours are held out.
+HELDOUT4_OBJECTS = (("green", "triangle"), ("red", "ball"), ("purple", "square"), ("yellow", "triangle"))
+#: In-distribution test tasks of the ``heldout4`` splits (``heldout4_indist_test``).
+HELDOUT4_INDIST_TASKS = 250
 
 
 class MultiRoomEnv(gym.Env):
@@ -456,6 +462,11 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
     - ``heldout_train`` (1700): tasks none of whose 4 objects (true or decoy) is one of
       ``HELDOUT_OBJECTS``, so those colour-shape combinations are never seen in training;
       ``heldout_test``: every task whose true object is a held-out combination (paper Table 5).
+    - ``heldout4_*`` (version 2), with the 4 combinations of ``HELDOUT4_OBJECTS``: of the tasks none of
+      whose objects is held out (1029), ``heldout4_indist_test`` (250, drawn with its own stream, so
+      the splits above are unchanged) tests the same model in distribution and ``heldout4_train``
+      is the rest (779: fewer than 1700, as a task has 4 objects); ``heldout4_test``: every task
+      whose true object is held out (720).
     """
     rng = np.random.default_rng(seed)
     perm = rng.permutation(NUM_TASKS)
@@ -468,19 +479,43 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
         elif not any((o.colour, o.shape) in held for o in objs):
             clean.append(t)
     heldout_train = np.asarray(clean)[rng.permutation(len(clean))[:1700]]
+    held4 = set(HELDOUT4_OBJECTS)
+    clean4, heldout4_test = [], []
+    for t in range(NUM_TASKS):
+        objs = get_task(t).objects
+        if (objs[0].colour, objs[0].shape) in held4:
+            heldout4_test.append(t)
+        elif not any((o.colour, o.shape) in held4 for o in objs):
+            clean4.append(t)
+    order4 = np.asarray(clean4)[np.random.default_rng([seed, 4]).permutation(len(clean4))]
     return {
         "train": sorted(int(t) for t in perm[:1700]),
         "test": sorted(int(t) for t in perm[1700:1950]),
         "valid": sorted(int(t) for t in perm[1950:]),
         "heldout_train": sorted(int(t) for t in heldout_train),
         "heldout_test": sorted(heldout_test),
+        "heldout4_train": sorted(int(t) for t in order4[HELDOUT4_INDIST_TASKS:]),
+        "heldout4_indist_test": sorted(int(t) for t in order4[:HELDOUT4_INDIST_TASKS]),
+        "heldout4_test": sorted(heldout4_test),
     }
+
+
+def decoy_overlap(task_ids) -> tuple[float, float]:
+    """Fractions of ``task_ids`` with a decoy of the true object's colour, and of its shape: how
+    far a held-out combination's words were seen on other objects of the same task."""
+    tasks = [get_task(int(t)).objects for t in task_ids]
+    colour = sum(any(o.colour == objs[0].colour for o in objs[1:]) for objs in tasks)
+    shape = sum(any(o.shape == objs[0].shape for o in objs[1:]) for objs in tasks)
+    return colour / max(len(tasks), 1), shape / max(len(tasks), 1)
 
 
 SPLIT_NOTE = (
     "make_splits(0) in gpl_dist/envs/multiroom.py: train/test/valid = 1700/250/1290 of a seeded "
     "permutation; heldout_train = 1700 tasks without any object in HELDOUT_OBJECTS "
-    f"({', '.join(' '.join(c) for c in HELDOUT_OBJECTS)}); heldout_test = all tasks whose true object is held out"
+    f"({', '.join(' '.join(c) for c in HELDOUT_OBJECTS)}); heldout_test = all tasks whose true object is held out; "
+    f"version 2 adds heldout4_* with HELDOUT4_OBJECTS ({', '.join(' '.join(c) for c in HELDOUT4_OBJECTS)}): "
+    f"heldout4_indist_test = {HELDOUT4_INDIST_TASKS} tasks without a held-out object (own stream), heldout4_train = "
+    "the other such tasks, heldout4_test = all tasks whose true object is held out"
 )
 
 DOMAIN = DomainSpec(
@@ -494,7 +529,8 @@ DOMAIN = DomainSpec(
     trajectory_stride=25,
     vocabulary=VOCABULARY,
     make_env=make_env,
-    split_names=("train", "valid", "test", "heldout_train", "heldout_test"),
+    split_names=("train", "valid", "test", "heldout_train", "heldout_test", "heldout4_train", "heldout4_indist_test",
+                 "heldout4_test"),
     experts={"scripted": lazy("gpl_dist.experts.multiroom:MultiRoomExpert")},
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.multiroom:make_multiroom_corrector"),
@@ -520,4 +556,4 @@ OBJECT_COLOURS = COLOURS
 if __name__ == "__main__":  # regenerate the split file: python -m gpl_dist.envs.multiroom
     from gpl_dist.splits import write_splits
 
-    print(write_splits("multiroom", make_splits(0), seed=0, note=SPLIT_NOTE))
+    print(write_splits("multiroom", make_splits(0), seed=0, note=SPLIT_NOTE, version=2))
