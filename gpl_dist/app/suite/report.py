@@ -418,6 +418,18 @@ def _heading(table: PaperTable) -> str:
     return head + (", " + table.key.split("-")[1] if "-" in table.key else "")
 
 
+def _decoys() -> str:
+    """How far the held-out combinations' words were seen on a task's other objects (the decoys)."""
+    from gpl_dist.envs.multiroom import decoy_overlap
+    from gpl_dist.splits import split_tasks
+
+    parts = []
+    for split, label in (("heldout4_test", "held-out"), ("heldout4_indist_test", "in-distribution")):
+        colour, shape = decoy_overlap(split_tasks("multiroom", split))
+        parts.append(f"{label} tasks: {colour:.0%} have a decoy of the true object's colour, {shape:.0%} one of its shape")
+    return "Decoy overlap (from the split file): " + "; ".join(parts) + "."
+
+
 def health_markdown(health: dict[Path, RunHealth], report_dir: Path) -> str:
     """Every run's conditioning encoders at its final round (dead / units per encoder: i
     instruction, c correction, t trajectory, p pair) and the rounds any layer of them was dead
@@ -644,6 +656,9 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
         has_plot = plot_table(results, table, png)
         parts += [f"## {_heading(table)}", md, success]
         html_parts += [f"<h2>{html.escape(_heading(table))}</h2>", _md_table_html(md), _md_table_html(success)]
+        if table.key == "table5":
+            parts.append(_decoys())
+            html_parts.append(f"<p>{html.escape(_decoys())}</p>")
         if has_plot:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
