@@ -36,13 +36,13 @@ def test_gymnasium_makes_each_env_in_a_fresh_interpreter_from_its_module_prefixe
             "obs, info = env.reset(seed=0)\n"
             "print(obs.shape, env.spec.max_episode_steps, info['instruction'])\n"
             "env = gym.make('gpl/Relocation-v0', task_id=3)\n"  # registered now, by the first make
-            "print(env.reset(seed=0)[0].shape, info['instruction_ids'][:3].tolist())\n")
+            "print(env.reset(seed=0)[0].shape, list(info['instruction_ids'][:3]))\n")
     done = _fresh_python(code)
     assert done.returncode == 0, done.stderr[-2000:]
     lines = done.stdout.splitlines()
     env = get_domain("multiroom").make_env(17)
     assert lines[0] == f"(7, 7, 6) 100 {env.instruction}"
-    assert lines[1] == f"(28,) {env.instruction_ids[:3].tolist()}"
+    assert lines[1] == f"(28,) {list(env.instruction_ids[:3])}"
 
 
 @pytest.mark.parametrize("domain_name, task_id", [("multiroom", 17), ("relocation", 3)])
@@ -50,11 +50,10 @@ def test_every_info_carries_the_instruction_as_text_and_token_ids(domain_name, t
     domain = get_domain(domain_name)
     env = domain.make_env(task_id)
     _, info = env.reset(seed=1)
-    ids = domain.vocabulary.encode(env.instruction)
+    ids = tuple(domain.vocabulary.encode(env.instruction).tolist())
     for step_info in (info, env.step(0)[4]):
-        assert step_info["instruction"] == env.instruction
-        assert np.array_equal(step_info["instruction_ids"], ids) and step_info["instruction_ids"].dtype == np.int64
-    assert not info["instruction_ids"].flags.writeable  # one array per env: nobody may change it for the others
+        assert step_info["instruction"] == env.instruction and step_info["instruction_ids"] == ids
+    assert len(ids) == domain.vocabulary.max_tokens and all(type(i) is int for i in ids)
 
 
 def test_multiroom_terminates_on_success_only_when_asked():
