@@ -381,7 +381,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)", formatter_class=argparse.RawDescriptionHelpFormatter,
+    p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=textwrap.fill(ROUND_LINE_LEGEND[0].upper() + ROUND_LINE_LEGEND[1:] + ".", 80,
                                             break_on_hyphens=False))
     p.add_argument("--config", help="YAML config (see configs/)")

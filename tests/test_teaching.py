@@ -158,11 +158,46 @@ def test_the_log_is_one_parquet_row_per_attempt(teacher, tmp_path):
     assert len(rows) == 3 and len(list((tmp_path / "log").iterdir())) == 2
     mine = sorted((r for r in rows if r["episode"] == episode.episode_id), key=lambda r: r["attempt"])
     assert [r["attempt"] for r in mine] == [0, 1]
-    assert mine[1]["correction"] == "enter the gry room" and mine[1]["unknown_words"] == ["gry"]
-    assert mine[1]["hint_shown"] and not mine[0]["hint_shown"] and mine[0]["correction"] == ""
+    assert mine[1]["correction_before"] == "enter the gry room" and mine[1]["unknown_words"] == ["gry"]
+    assert mine[1]["typed"] == "enter the gry room"  # sent as typed
+    assert mine[1]["hint_shown"] and not mine[0]["hint_shown"] and mine[0]["correction_before"] == ""
+    assert "correction" not in mine[0]  # the buffer's `correction` is the one after an attempt: not this
     assert mine[1]["correction_tokens"] == list(episode.attempts[1].check.token_ids)
     assert mine[0]["task_id"] == TASK and mine[0]["seed"] == 3 and mine[0]["source"] == "test"
     assert mine[1]["completion"] == episode.attempts[1].completion and mine[1]["started_at"] is not None
+    assert not any(r["undone"] for r in mine)
+    undone = episode.undo()
+    again = episode.attempt("enter the grey room", typed="go into the grey rom")
+    write_episode_log(episode, tmp_path / "log")
+    rows = [r for r in pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
+            if r["episode"] == episode.episode_id]
+    assert [(r["attempt"], r["correction_before"], r["undone"]) for r in rows] == [
+        (0, "", False), (1, "enter the gry room", True), (1, "enter the grey room", False)]
+    assert rows[2]["typed"] == "go into the grey rom"  # what the person typed, beside what was sent
+    assert undone.key != again.key and len(episode.attempts) == 2
+    with pytest.raises(TeachingError, match="no correction to undo"):
+        other.undo()
+
+
+def test_undo_is_exact_and_the_oracle_runs_beside_without_joining_the_episode(teacher):
+    episode, fresh = teacher.episode(TASK, seed=3), teacher.episode(TASK, seed=3)
+    episode.attempt()
+    fresh.attempt()
+    episode.attempt("enter the blue room")
+    episode.undo()
+    redone = episode.attempt("enter the grey room")
+    assert np.array_equal(redone.actions, fresh.attempt("enter the grey room").actions)  # as if never undone
+    episode.undo()
+    hint = episode.hint()
+    branch = episode.oracle_attempt()
+    assert branch.said_before == hint and len(episode.attempts) == 1 and episode.oracle_branch == {1: branch}
+    by_oracle = teacher.episode(TASK, seed=3)
+    by_oracle.attempt()
+    assert np.array_equal(branch.actions, by_oracle.attempt(hint).actions)
+    for picture in (episode.gif(1, oracle=True), episode.still(1, oracle=True), episode.film_strip(1, oracle=True)):
+        assert len(picture) > 1000
+    with pytest.raises(TeachingError, match="does not exist"):
+        episode.still(1)
 
 
 def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
@@ -173,7 +208,7 @@ def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
 
 def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
     typed = ["", "x" * 10_000, "enter\x1b[31m the room", "Geh nach Norden", ":hint", ":help", "enter the gry room", "",
-             "the", ":use", ":quit"]
+             "the", ":use", ":undo", ":quit"]
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(typed) + "\n"))
     assert main(["teach", "--run-dir", str(run), "--task", str(TASK), "--seed", "3", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -181,15 +216,16 @@ def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
                    "control characters", "knows too few of the words", "hint: the oracle would say",
                    "unknown command ':help'", "unknown words: gry", "closest known phrasing: 'enter the grey room'",
                    "attempt 2 (correction: 'enter the gry room')", "not a phrasing the policy was trained on",
-                   "carrying", "GIF: "):
+                   "carrying", "GIF: ", "undone: attempt 3", "steps"):
         assert needle in out, needle
     gifs = sorted((tmp_path / "gifs").glob("*.gif"))
     assert len(gifs) == 3 and all(g.stat().st_size > 1000 for g in gifs)
     rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
     rows.sort(key=lambda r: r["attempt"])
-    said = [r["correction"] for r in rows]
+    said = [r["correction_before"] for r in rows]
     assert said[:2] == ["", "enter the gry room"] and len(said) == 3 and said[2] != "the"  # ':use' sent the closest
     assert said[2] in MULTIROOM.correction_phrasings() and "attempt 3 (correction: '" + said[2] in out
+    assert rows[2]["typed"] == "the" and rows[2]["undone"] and not rows[1]["undone"]  # ':undo' took it back
     assert rows[0]["run_dir"] == str(run.resolve()) and rows[0]["checkpoint"].endswith("checkpoints/latest.pt")
     assert rows[0]["split"] == "test" and rows[0]["greedy"] is False
     assert main(["teach", "--run-dir", str(run), "--task", "99999", "--out", str(tmp_path)]) == 2

@@ -223,7 +223,8 @@ class MultiRoomEnv(gym.Env):
     ## Rendering
     ``render_mode="rgb_array"``: the full grid, 32 px tiles (608x608x3 uint8).
     ``render_mode="ansi"``: the grid as text, two characters a cell, with the cells visited since
-    reset and a legend (``multiroom_render.render_text``).
+    reset and a legend (``multiroom_render.render_text``). ``picture_points()``: the agent's pixel in
+    the RGB picture (what a drawn path follows).
     """
 
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 10}
@@ -397,6 +398,13 @@ class MultiRoomEnv(gym.Env):
                 cells[XY[c]] = ("floor", col, t, False)
         carried = self._obj_codes[self._carrying] if self._carrying >= 0 else (0, 0)
         return render_grid(cells, XY[self._pos], carried)
+
+    def picture_points(self) -> tuple[tuple[float, float], ...]:
+        """Where the agent is in the ``rgb_array`` picture, in pixels (x, y): what a drawn path follows."""
+        from gpl_dist.envs.multiroom_render import TILE
+
+        x, y = XY[self._pos]
+        return ((x * TILE + TILE / 2, y * TILE + TILE / 2),)
 
     # ------------------------------------------------------------------ privileged read-only state
     def can_drop_at(self, cell: int) -> bool:

@@ -145,7 +145,8 @@ class RelocationEnv(gymnasium.Env):
 
     **Rendering.** ``render_mode="rgb_array"``: a top-down picture (400x400x3 uint8);
     ``"ansi"``: the same view as text, with the paths of the gripper and the goal block since reset
-    (``relocation_render.render_text``).
+    (``relocation_render.render_text``). ``picture_points()``: the gripper's and the goal block's
+    pixels in the RGB picture (what drawn paths follow).
 
     **State access** (expert, corrections, tests): ``data`` (MjData; ``qpos`` layout as the
     observation's indices 0-8), ``block_xy(i)``, ``initial_blocks`` (3, 2) at reset,
@@ -222,6 +223,14 @@ class RelocationEnv(gymnasium.Env):
     # -- state access ----------------------------------------------------------------------------
 
     @property
+    def picture_points(self) -> tuple[tuple[float, float], ...]:
+        """Where the gripper and the goal block are in the ``rgb_array`` picture, in pixels (x, y):
+        what drawn paths follow."""
+        from gpl_dist.envs.relocation_render import picture_xy
+
+        q = self.data.qpos
+        return (picture_xy(float(q[0]), float(q[1])), picture_xy(float(q[self._bq]), float(q[self._bq + 1])))
+
     def gripper_pose(self) -> np.ndarray:
         """(x, y, orientation) of the gripper (a copy)."""
         return self.data.qpos[0:3].copy()
