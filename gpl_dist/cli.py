@@ -275,6 +275,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """``gpl-dist export``: a run's committed buffer as a Minari dataset (``gpl_dist.app.export``)."""
+    from gpl_dist.app.export import export_minari
+
+    dataset_id, n = export_minari(args.run_dir, _buffer_root(args.run_dir), args.out, args.dataset_id)
+    print(f"wrote Minari dataset {dataset_id} ({n} episodes, one per attempt) under {args.out}; read it with "
+          f"MINARI_DATASETS_PATH={args.out} python -c \"import minari; print(minari.load_dataset('{dataset_id}'))\"")
+    return 0
+
+
 def _print_problems(report) -> None:
     for p in report.problems:
         print(f"BAD  {p.path}: {p.message}")
@@ -480,6 +490,13 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback only)")
             p.add_argument("--port", type=int, default=8000, help="port to listen on (default 8000)")
         p.set_defaults(func=func)
+
+    p = sub.add_parser("export", help="write a run's buffer as a Minari dataset (each attempt an episode)")
+    p.add_argument("run_dir", help="a run dir with a buffer")
+    p.add_argument("--format", choices=("minari",), default="minari", help="dataset format (Minari's arrow storage)")
+    p.add_argument("--out", required=True, help="the Minari datasets folder (MINARI_DATASETS_PATH) to write into")
+    p.add_argument("--dataset-id", help="dataset id (default gpl-dist/<domain>-<run dir name>-v0)")
+    p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("inspect", help="summarise a run's committed buffer (after verifying it)")
     p.add_argument("run_dir", help="a run dir, or a buffer root")

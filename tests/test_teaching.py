@@ -319,8 +319,29 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
             expect(page.locator(".attempt")).to_have_count(2, timeout=60_000)
             expect(page.locator(".attempt").nth(1)).to_contain_text("correction: enter the grey room")
             expect(page.locator(".attempt").nth(1)).to_contain_text("completion")
-            page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && i.naturalWidth > 0)",
-                                   timeout=60_000)
+            page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && i.naturalWidth > 0)"
+                                   " && document.querySelectorAll('.loading').length === 0", timeout=60_000)
+            frames = page.locator(".attempt .frame")
+            page.locator("#scrub").fill("0")  # one control moves every attempt: all at their first frame
+            assert [frames.nth(i).get_attribute("data-frame") for i in range(2)] == ["0", "0"]
+            page.locator("#scrub").fill("50")
+            assert len({frames.nth(i).get_attribute("data-frame") for i in range(2)}) == 1
+            assert frames.nth(0).get_attribute("data-frame") not in ("0", None)
+            expect(page.locator(".attempt").nth(0).locator(".now")).to_contain_text("step 50")
+            page.click("#oracle-button")  # the oracle's correction, its attempt beside (dashed), not added
+            expect(page.locator(".attempt.oracle")).to_have_count(1, timeout=60_000)
+            expect(page.locator("#hint")).to_contain_text("The oracle would say:")
+            page.click("#undo")  # take "enter the grey room" back
+            expect(page.locator(".attempt:not(.oracle)")).to_have_count(1, timeout=60_000)
+            page.fill("#correction", "enter the gry room")
+            page.locator("#use-suggestion").click(timeout=10_000)  # send the closest phrasing in its place
+            page.click("#send")
+            expect(page.locator(".attempt:not(.oracle)")).to_have_count(2, timeout=60_000)
+            expect(page.locator(".attempt").nth(1)).to_contain_text("you typed: enter the gry room")
+            with page.expect_download() as download:
+                page.click("#download")
+            session = tmp_path / "session.parquet"
+            download.value.save_as(session)
             other = browser.new_page()  # a second tab: its own episode
             other.goto(f"http://127.0.0.1:{port}/")
             other.fill("#task", str(TASK + 1))
@@ -329,13 +350,20 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
             page.click("#hint-button")
             expect(page.locator("#hint")).to_contain_text("The oracle would say:")
             expect(page.locator(".attempt")).to_have_count(2)
+            page.wait_for_function("document.querySelectorAll('.loading').length === 0", timeout=60_000)
             shot = tmp_path / "teach-page.png"
             page.screenshot(path=str(shot), full_page=True)
             browser.close()
         assert shot.stat().st_size > 10_000
         rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
-        assert sorted((r["task_id"], r["attempt"], r["correction"], r["source"]) for r in rows) == [
-            (TASK, 0, "", "web"), (TASK, 1, "enter the grey room", "web"), (TASK + 1, 0, "", "web")]
+        assert sorted((r["task_id"], r["attempt"], r["correction_before"], r["typed"], r["undone"], r["source"])
+                      for r in rows) == [
+            (TASK, 0, "", "", False, "web"), (TASK, 1, "enter the grey room", "enter the grey room", True, "web"),
+            (TASK, 1, "enter the grey room", "enter the gry room", False, "web"),  # typed, and what was sent
+            (TASK + 1, 0, "", "", False, "web")]
+        import pyarrow.parquet as pq
+        downloaded = pq.read_table(session).to_pylist()  # the same rows as the episode's log file
+        assert downloaded == [r for r in rows if r["episode"] == downloaded[0]["episode"]] and len(downloaded) == 3
     finally:
         server.terminate()
         server.wait(timeout=30)

@@ -214,7 +214,8 @@ def _attempt_view(episode: TeachingEpisode, a: TaughtAttempt, oracle: bool = Fal
 
 def _view(episode: TeachingEpisode) -> EpisodeView:
     attempts = [_attempt_view(episode, a) for a in episode.attempts]
-    branch = episode.oracle_branch.get(len(episode.attempts))
+    n = len(episode.attempts)  # the oracle's attempt at the next index, or beside the person's latest
+    branch = episode.oracle_branch.get(n) or (episode.oracle_branch.get(n - 1) if n > 1 else None)
     return EpisodeView(episode_id=episode.episode_id, task_id=episode.task_id, split=episode.split, seed=episode.seed,
                        instruction=episode.instruction, solved=episode.solved,
                        corrections_left=episode.corrections_left, attempts=attempts,

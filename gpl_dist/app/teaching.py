@@ -333,7 +333,8 @@ class TeachingEpisode:
             raise TeachingError("there is no correction to undo: the first attempt follows the instruction alone")
         last = self.attempts.pop()
         self.undone.append(last)
-        self.oracle_branch.pop(last.index, None)
+        # an oracle's attempt after the undone one followed it: gone too (one at the undone index stays valid)
+        self.oracle_branch = {k: v for k, v in self.oracle_branch.items() if k <= len(self.attempts)}
         return last
 
     def oracle_attempt(self) -> TaughtAttempt:
