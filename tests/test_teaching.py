@@ -2,6 +2,7 @@
 terminal loop, the web API, and a real browser through a full episode."""
 
 import io
+import json
 import shutil
 import socket
 import subprocess
@@ -381,3 +382,58 @@ def test_serve_refuses_a_bad_port_split_or_taken_port_in_one_line(run, capsys):
             assert err.startswith("gpl-dist: error:") and needle in err and "\n" not in err, err
     finally:
         taken.close()
+
+
+def test_twenty_requests_for_one_unfinished_gif_render_it_once(teacher, tmp_path):
+    """Issue 41, item 7: concurrent requests for a picture in flight wait for that render (loopback
+    server, bounded count); the cache and the renders at once are bounded, so memory is too."""
+    import threading
+    import urllib.request
+
+    import psutil
+    import uvicorn
+
+    from gpl_dist.app.teach_web import create_app
+
+    app = create_app(teacher, tmp_path)
+    port = free_ports(1)[0]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        while not server.started:
+            time.sleep(0.05)
+        base = f"http://127.0.0.1:{port}"
+        request = urllib.request.Request(f"{base}/api/episodes", data=b'{"task_id": 263, "seed": 3}',
+                                         headers={"Content-Type": "application/json"})
+        view = json.loads(urllib.request.urlopen(request, timeout=300).read())
+        url = base + view["attempts"][0]["gif_url"]
+        process, bodies, peak = psutil.Process(), [], [0]
+        before = process.memory_info().rss
+        done = threading.Event()
+
+        def watch():
+            while not done.is_set():
+                peak[0] = max(peak[0], process.memory_info().rss)
+                time.sleep(0.02)
+
+        def fetch():
+            bodies.append(urllib.request.urlopen(url, timeout=300).read())
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        clients = [threading.Thread(target=fetch) for _ in range(20)]
+        for c in clients:
+            c.start()
+        for c in clients:
+            c.join()
+        done.set()
+        watcher.join()
+        assert len(bodies) == 20 and len(set(bodies)) == 1 and bodies[0][:6] == b"GIF89a"
+        assert app.state.pictures.renders == 1  # drawn once; 19 waited for it
+        assert peak[0] - before < 400 * 2**20  # one render's frames, not twenty (20 renders grew 1.7 GB)
+        urllib.request.urlopen(url, timeout=300).read()
+        assert app.state.pictures.renders == 1  # and kept for the next one
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)

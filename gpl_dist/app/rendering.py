@@ -9,7 +9,7 @@ from __future__ import annotations
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from PIL import Image
@@ -64,7 +64,7 @@ def replay_attempt(domain_name: str, task_id: int, actions: Sequence[int] | np.n
                    render: bool = True) -> Replay:
     """Step ``task_id``'s env from ``reset_seed`` through ``actions``, drawing each state when ``render``."""
     domain = get_domain(domain_name)
-    env = domain.make_env(task_id, render_mode="rgb_array" if render else None)
+    env: Any = domain.make_env(task_id, render_mode="rgb_array" if render else None)  # its picture_points()
     _, info = env.reset(seed=reset_seed)
     frames, points = ([np.asarray(env.render())], [env.picture_points()]) if render else ([], [])
     completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
