@@ -222,7 +222,6 @@ class RelocationEnv(gymnasium.Env):
 
     # -- state access ----------------------------------------------------------------------------
 
-    @property
     def picture_points(self) -> tuple[tuple[float, float], ...]:
         """Where the gripper and the goal block are in the ``rgb_array`` picture, in pixels (x, y):
         what drawn paths follow."""
@@ -231,6 +230,7 @@ class RelocationEnv(gymnasium.Env):
         q = self.data.qpos
         return (picture_xy(float(q[0]), float(q[1])), picture_xy(float(q[self._bq]), float(q[self._bq + 1])))
 
+    @property
     def gripper_pose(self) -> np.ndarray:
         """(x, y, orientation) of the gripper (a copy)."""
         return self.data.qpos[0:3].copy()
