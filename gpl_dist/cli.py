@@ -12,11 +12,14 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import textwrap
 import traceback
 from pathlib import Path
 
+from gpl_dist import __version__
 from gpl_dist.errors import UsageError
 from gpl_dist.language import PHRASINGS
+from gpl_dist.metrics import ROUND_LINE_LEGEND
 
 #: An error line is cut here (a value given on the command line can be arbitrarily long).
 MAX_MESSAGE_CHARS = 600
@@ -70,7 +73,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                           progress=not args.no_progress)
     if result.history:
         last = result.history[-1]
-        print("\nfinal round, training tasks (mean completion after k corrections):")
+        print("\nfinal round, training tasks: cK is the mean completion (fraction of the task done) after K "
+              "corrections; c0 follows the instruction alone:")
         for k, v in enumerate(last.completion_by_corrections):
             print(f"  c{k}: {v:.3f}")
         print(f"run saved to {result.run_dir}; evaluate with: gpl-dist eval --run-dir {result.run_dir}")
@@ -281,9 +285,33 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export(args: argparse.Namespace) -> int:
+    """``gpl-dist export``: a run's committed buffer as a Minari dataset (``gpl_dist.app.export``)."""
+    from gpl_dist.app.export import export_minari
+
+    dataset_id, n = export_minari(args.run_dir, _buffer_root(args.run_dir), args.out, args.dataset_id)
+    print(f"wrote Minari dataset {dataset_id} ({n} episodes, one per attempt) under {args.out}; read it with "
+          f"MINARI_DATASETS_PATH={args.out} python -c \"import minari; print(minari.load_dataset('{dataset_id}'))\"")
+    return 0
+
+
 def _print_problems(report) -> None:
     for p in report.problems:
         print(f"BAD  {p.path}: {p.message}")
+
+
+def _says_no_buffer(run_dir: str, root: str) -> bool:
+    """Print, for a run dir without a buffer (a run put back by ``suite restore`` has none), what it
+    holds instead; returns whether it did."""
+    if "://" in root or Path(root).exists() or not (Path(run_dir) / "config.yaml").is_file():
+        return False
+    restored = (Path(run_dir) / "suite-run.json").is_file()
+    print(f"{run_dir} has no buffer (no {root}): "
+          + ("runs restored by 'gpl-dist suite restore' carry no buffer, only " if restored else "it holds only ")
+          + "the config, metrics.jsonl, eval files and checkpoints. Teach or evaluate it (gpl-dist teach/serve/eval "
+          f"--run-dir {run_dir}); a buffer comes only from training (gpl-dist train --config {run_dir}/config.yaml "
+          "--run-dir NEW_DIR)")
+    return True
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
@@ -292,6 +320,8 @@ def cmd_inspect(args: argparse.Namespace) -> int:
     from storage.verify import verify_buffer
 
     root = _buffer_root(args.run_dir)
+    if _says_no_buffer(args.run_dir, root):
+        return 0
     report = verify_buffer(root, checksums=not args.no_verify)
     _print_problems(report)
     report.raise_if_bad(f"run gpl-dist verify {args.run_dir} for the list and docs/buffer.md (Recovering)")
@@ -356,6 +386,11 @@ def cmd_clean(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_version(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--version", action="version", version=f"gpl-dist {__version__}",
+                        help="print the version and exit")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     from gpl_dist.domains import domain_names
@@ -363,9 +398,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpl-dist",
                                      description="Guiding Policies with Language: distributed DAgger meta-training.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
+    _add_version(parser)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)")
+    p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=textwrap.fill(ROUND_LINE_LEGEND[0].upper() + ROUND_LINE_LEGEND[1:] + ".", 80,
+                                            break_on_hyphens=False))
     p.add_argument("--config", help="YAML config (see configs/)")
     p.add_argument("--run-dir", required=True, help="where the buffer, checkpoints and metrics go")
     p.add_argument("--num-workers", type=int, help="rollout actors (overrides collection.num_workers)")
@@ -380,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Meta-test a trained run. Writes RUN_DIR/eval.json and eval.png with the run's "
                                    "own eval settings; other settings write eval-<what differs>.json/.png "
                                    "(eval-greedy.json, eval-c10.json, ...), leaving eval.json as it was.")
-    p.add_argument("--run-dir", required=True)
+    p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt and config.yaml)")
     p.add_argument("--corrections", type=int, help="corrections to give (default: eval.num_corrections)")
     p.add_argument("--seeds", help="comma-separated seeds (default: eval.seeds)")
     p.add_argument("--split", help="task split (default: eval.split)")
@@ -435,16 +474,17 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_suite_restore)
 
     p = sub.add_parser("render", help="draw a task (PNG), an attempt (GIF), or a trained policy's attempts (GIF)")
-    p.add_argument("--env", choices=domain_names())
+    p.add_argument("--env", choices=domain_names(), help="the domain of the task to draw (not with --run-dir)")
     p.add_argument("--run-dir", help="draw this run's trained policy: its successive attempts and the corrections between")
     p.add_argument("--attempts", type=int, default=5, help="with --run-dir: attempts to draw (corrections + 1)")
     p.add_argument("--checkpoint", help="with --run-dir: checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
-    p.add_argument("--task", required=True, type=int)
+    p.add_argument("--task", required=True, type=int, help="task id (multiroom 0..3239, relocation 0..999)")
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
     drawn = p.add_mutually_exclusive_group()
     drawn.add_argument("--actions", help="actions of the attempt: '0,1,3,...' or a file holding them")
     drawn.add_argument("--expert", action="store_true", help="draw the expert's attempt")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the env's reset and, with --run-dir, of the policy's actions and the oracle (default 0)")
     p.set_defaults(func=cmd_render)
 
     for name, func, text in (("teach", cmd_teach, "correct a trained policy yourself, in the terminal"),
@@ -464,24 +504,31 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--hint", action="store_true", help="show what the run's oracle would say after each attempt")
         else:
             p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback only)")
-            p.add_argument("--port", type=int, default=8000)
+            p.add_argument("--port", type=int, default=8000, help="port to listen on (default 8000)")
         p.set_defaults(func=func)
 
+    p = sub.add_parser("export", help="write a run's buffer as a Minari dataset (each attempt an episode)")
+    p.add_argument("run_dir", help="a run dir with a buffer")
+    p.add_argument("--format", choices=("minari",), default="minari", help="dataset format (Minari's arrow storage)")
+    p.add_argument("--out", required=True, help="the Minari datasets folder (MINARI_DATASETS_PATH) to write into")
+    p.add_argument("--dataset-id", help="dataset id (default gpl-dist/<domain>-<run dir name>-v0)")
+    p.set_defaults(func=cmd_export)
+
     p = sub.add_parser("inspect", help="summarise a run's committed buffer (after verifying it)")
-    p.add_argument("run_dir")
+    p.add_argument("run_dir", help="a run dir, or a buffer root")
     p.add_argument("--tasks", action="store_true", help="add a per-task table")
     p.add_argument("--no-verify", action="store_true", help="compare file sizes only, not sha256 checksums")
     p.set_defaults(func=cmd_inspect)
 
     p = sub.add_parser("verify", help="check every committed file against its manifest; name each bad one")
-    p.add_argument("run_dir")
+    p.add_argument("run_dir", help="a run dir, or a buffer root")
     p.add_argument("--quarantine", action="store_true",
                    help="move bad rounds under quarantine/ (nothing deleted) so that --resume can collect them again")
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("clean", help="remove leftovers of dead writers (never committed data; never during a run)")
-    p.add_argument("run_dir")
-    p.add_argument("--dry-run", action="store_true")
+    p.add_argument("run_dir", help="a run dir, or a buffer root")
+    p.add_argument("--dry-run", action="store_true", help="list what would be removed, remove nothing")
     p.set_defaults(func=cmd_clean)
     return parser
 

@@ -29,7 +29,7 @@ import torch
 from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_dict, save_config
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
-from gpl_dist.metrics import completion_by_corrections
+from gpl_dist.metrics import ROUND_LINE_LEGEND, completion_by_corrections
 from gpl_dist.models.build import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
@@ -344,6 +344,8 @@ def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ..
                 round_index=r, policy_version=r + 1, model_state=dict(state.model),
                 optimizer_state=dict(state.optimizer or {}), rng_state=capture_rng(state.generator),
                 config=config_to_dict(cfg), history=[m.to_dict() for m in history]))
+            if r == start_round:
+                print(ROUND_LINE_LEGEND)
             _log_round(run_dir, tb, metrics)
     finally:
         if tb is not None:
@@ -439,7 +441,7 @@ def _tensorboard(run_dir: Path):
 
 
 def format_round(m: RoundMetrics) -> str:
-    """The one-line summary of a round that ``gpl-dist train`` prints."""
+    """The one-line summary of a round that ``gpl-dist train`` prints (``ROUND_LINE_LEGEND``)."""
     curve = " ".join(f"c{k}={v:.3f}" for k, v in enumerate(m.completion_by_corrections))
     collected = "resumed" if m.collected_tuples is None else f"{m.collected_tuples} tuples"
     spread = m.correction_spread

@@ -261,6 +261,10 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
         raise UsageError(f"phrasings must be one of {', '.join(PHRASINGS)}, got {phrasings!r}")
     if phrasings != "canonical" and get_domain(cfg.env.domain).paraphrases is None:
         raise UsageError(f"{cfg.env.domain} declares no paraphrases: only canonical phrasings can be evaluated")
+    if phrasings != "canonical" and not cfg.model.paraphrases:
+        print(f"warning: {run_dir} was trained without paraphrases (model.paraphrases: false): it reads the words "
+              f"of the {phrasings} phrasings it never saw as <unk>, so this measures unseen words, not new phrasings "
+              "of known ones (train with --set model.paraphrases=true to compare)", flush=True)
     result = evaluate_policy(cfg, model, num_corrections=k, seeds=seeds, split=split,
                              max_tasks=max_tasks, greedy=greedy, phrasings=phrasings)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,

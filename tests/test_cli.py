@@ -8,6 +8,7 @@ import numpy as np
 from PIL import Image
 
 from gpl_dist.cli import main
+from gpl_dist.domains import get_domain
 
 
 def test_render_png_and_gif(tmp_path, capsys):
@@ -38,18 +39,24 @@ def test_render_draws_a_trained_policys_attempts_with_the_corrections_between(tm
     import gpl_dist.app.rendering as rendering
     draw = rendering._captioned
 
-    def recording(frame, top, bottom, **kw):
-        captions.append((top, bottom))
-        return draw(frame, top, bottom, **kw)
+    def recording(frame, lines, **kw):
+        captions.append((" ".join(x for x in lines[:-1] if x), lines[-1]))
+        return draw(frame, lines, **kw)
 
     monkeypatch.setattr(rendering, "_captioned", recording)
     assert main(["render", "--run-dir", str(run), "--task", "263", "--attempts", "3", "--out", str(tmp_path / "p.gif")]) == 0
     gif = Image.open(tmp_path / "p.gif")
     assert gif.n_frames > 3 and gif.size[0] == 400
-    tops = list(dict.fromkeys(top for top, _ in captions))  # one caption line per attempt, in order
-    assert tops[0].startswith("attempt 1/") and ": instruction: move" in tops[0].lower()
+    tops = list(dict.fromkeys(top for top, _ in captions))  # one caption per attempt, in order
+    instruction = get_domain("multiroom").make_env(263).instruction
+    assert tops[0].startswith("attempt 1/") and tops[0].endswith(f": instruction: {instruction}")  # whole, wrapped
     assert all(": correction: " in t for t in tops[1:]) and len(tops) <= 3
-    assert any(b.startswith("completion ") for _, b in captions)
+    assert all(b.startswith("step ") and ": completion " in b for _, b in captions)
+    sizes = set()
+    for i in range(gif.n_frames):  # wrapped captions of different lengths: every frame the same size
+        gif.seek(i)
+        sizes.add(gif.size)
+    assert len(sizes) == 1
     capsys.readouterr()
     for args, needle in ((["--task", "99999"], "outside"), (["--task", "1", "--attempts", "0"], "at least 1"),
                          (["--task", "1", "--env", "multiroom"], "leave out --env")):

@@ -2,6 +2,7 @@
 terminal loop, the web API, and a real browser through a full episode."""
 
 import io
+import json
 import shutil
 import socket
 import subprocess
@@ -158,11 +159,46 @@ def test_the_log_is_one_parquet_row_per_attempt(teacher, tmp_path):
     assert len(rows) == 3 and len(list((tmp_path / "log").iterdir())) == 2
     mine = sorted((r for r in rows if r["episode"] == episode.episode_id), key=lambda r: r["attempt"])
     assert [r["attempt"] for r in mine] == [0, 1]
-    assert mine[1]["correction"] == "enter the gry room" and mine[1]["unknown_words"] == ["gry"]
-    assert mine[1]["hint_shown"] and not mine[0]["hint_shown"] and mine[0]["correction"] == ""
+    assert mine[1]["correction_before"] == "enter the gry room" and mine[1]["unknown_words"] == ["gry"]
+    assert mine[1]["typed"] == "enter the gry room"  # sent as typed
+    assert mine[1]["hint_shown"] and not mine[0]["hint_shown"] and mine[0]["correction_before"] == ""
+    assert "correction" not in mine[0]  # the buffer's `correction` is the one after an attempt: not this
     assert mine[1]["correction_tokens"] == list(episode.attempts[1].check.token_ids)
     assert mine[0]["task_id"] == TASK and mine[0]["seed"] == 3 and mine[0]["source"] == "test"
     assert mine[1]["completion"] == episode.attempts[1].completion and mine[1]["started_at"] is not None
+    assert not any(r["undone"] for r in mine)
+    undone = episode.undo()
+    again = episode.attempt("enter the grey room", typed="go into the grey rom")
+    write_episode_log(episode, tmp_path / "log")
+    rows = [r for r in pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
+            if r["episode"] == episode.episode_id]
+    assert [(r["attempt"], r["correction_before"], r["undone"]) for r in rows] == [
+        (0, "", False), (1, "enter the gry room", True), (1, "enter the grey room", False)]
+    assert rows[2]["typed"] == "go into the grey rom"  # what the person typed, beside what was sent
+    assert undone.key != again.key and len(episode.attempts) == 2
+    with pytest.raises(TeachingError, match="no correction to undo"):
+        other.undo()
+
+
+def test_undo_is_exact_and_the_oracle_runs_beside_without_joining_the_episode(teacher):
+    episode, fresh = teacher.episode(TASK, seed=3), teacher.episode(TASK, seed=3)
+    episode.attempt()
+    fresh.attempt()
+    episode.attempt("enter the blue room")
+    episode.undo()
+    redone = episode.attempt("enter the grey room")
+    assert np.array_equal(redone.actions, fresh.attempt("enter the grey room").actions)  # as if never undone
+    episode.undo()
+    hint = episode.hint()
+    branch = episode.oracle_attempt()
+    assert branch.said_before == hint and len(episode.attempts) == 1 and episode.oracle_branch == {1: branch}
+    by_oracle = teacher.episode(TASK, seed=3)
+    by_oracle.attempt()
+    assert np.array_equal(branch.actions, by_oracle.attempt(hint).actions)
+    for picture in (episode.gif(1, oracle=True), episode.still(1, oracle=True), episode.film_strip(1, oracle=True)):
+        assert len(picture) > 1000
+    with pytest.raises(TeachingError, match="does not exist"):
+        episode.still(1)
 
 
 def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
@@ -173,7 +209,7 @@ def test_a_policy_that_reads_no_words_cannot_be_taught(tmp_path):
 
 def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
     typed = ["", "x" * 10_000, "enter\x1b[31m the room", "Geh nach Norden", ":hint", ":help", "enter the gry room", "",
-             "the", ":use", ":quit"]
+             "the", ":use", ":undo", ":quit"]
     monkeypatch.setattr("sys.stdin", io.StringIO("\n".join(typed) + "\n"))
     assert main(["teach", "--run-dir", str(run), "--task", str(TASK), "--seed", "3", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -181,15 +217,16 @@ def test_teach_in_the_terminal(run, tmp_path, monkeypatch, capsys):
                    "control characters", "knows too few of the words", "hint: the oracle would say",
                    "unknown command ':help'", "unknown words: gry", "closest known phrasing: 'enter the grey room'",
                    "attempt 2 (correction: 'enter the gry room')", "not a phrasing the policy was trained on",
-                   "carrying", "GIF: "):
+                   "carrying", "GIF: ", "undone: attempt 3", "steps"):
         assert needle in out, needle
     gifs = sorted((tmp_path / "gifs").glob("*.gif"))
     assert len(gifs) == 3 and all(g.stat().st_size > 1000 for g in gifs)
     rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
     rows.sort(key=lambda r: r["attempt"])
-    said = [r["correction"] for r in rows]
+    said = [r["correction_before"] for r in rows]
     assert said[:2] == ["", "enter the gry room"] and len(said) == 3 and said[2] != "the"  # ':use' sent the closest
     assert said[2] in MULTIROOM.correction_phrasings() and "attempt 3 (correction: '" + said[2] in out
+    assert rows[2]["typed"] == "the" and rows[2]["undone"] and not rows[1]["undone"]  # ':undo' took it back
     assert rows[0]["run_dir"] == str(run.resolve()) and rows[0]["checkpoint"].endswith("checkpoints/latest.pt")
     assert rows[0]["split"] == "test" and rows[0]["greedy"] is False
     assert main(["teach", "--run-dir", str(run), "--task", "99999", "--out", str(tmp_path)]) == 2
@@ -283,8 +320,29 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
             expect(page.locator(".attempt")).to_have_count(2, timeout=60_000)
             expect(page.locator(".attempt").nth(1)).to_contain_text("correction: enter the grey room")
             expect(page.locator(".attempt").nth(1)).to_contain_text("completion")
-            page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && i.naturalWidth > 0)",
-                                   timeout=60_000)
+            page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && i.naturalWidth > 0)"
+                                   " && document.querySelectorAll('.loading').length === 0", timeout=60_000)
+            frames = page.locator(".attempt .frame")
+            page.locator("#scrub").fill("0")  # one control moves every attempt: all at their first frame
+            assert [frames.nth(i).get_attribute("data-frame") for i in range(2)] == ["0", "0"]
+            page.locator("#scrub").fill("50")
+            assert len({frames.nth(i).get_attribute("data-frame") for i in range(2)}) == 1
+            assert frames.nth(0).get_attribute("data-frame") not in ("0", None)
+            expect(page.locator(".attempt").nth(0).locator(".now")).to_contain_text("step 50")
+            page.click("#oracle-button")  # the oracle's correction, its attempt beside (dashed), not added
+            expect(page.locator(".attempt.oracle")).to_have_count(1, timeout=60_000)
+            expect(page.locator("#hint")).to_contain_text("The oracle would say:")
+            page.click("#undo")  # take "enter the grey room" back
+            expect(page.locator(".attempt:not(.oracle)")).to_have_count(1, timeout=60_000)
+            page.fill("#correction", "enter the gry room")
+            page.locator("#use-suggestion").click(timeout=10_000)  # send the closest phrasing in its place
+            page.click("#send")
+            expect(page.locator(".attempt:not(.oracle)")).to_have_count(2, timeout=60_000)
+            expect(page.locator(".attempt").nth(1)).to_contain_text("you typed: enter the gry room")
+            with page.expect_download() as download:
+                page.click("#download")
+            session = tmp_path / "session.parquet"
+            download.value.save_as(session)
             other = browser.new_page()  # a second tab: its own episode
             other.goto(f"http://127.0.0.1:{port}/")
             other.fill("#task", str(TASK + 1))
@@ -293,13 +351,20 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
             page.click("#hint-button")
             expect(page.locator("#hint")).to_contain_text("The oracle would say:")
             expect(page.locator(".attempt")).to_have_count(2)
+            page.wait_for_function("document.querySelectorAll('.loading').length === 0", timeout=60_000)
             shot = tmp_path / "teach-page.png"
             page.screenshot(path=str(shot), full_page=True)
             browser.close()
         assert shot.stat().st_size > 10_000
         rows = pads.dataset(str(tmp_path / "log"), format="parquet").to_table().to_pylist()
-        assert sorted((r["task_id"], r["attempt"], r["correction"], r["source"]) for r in rows) == [
-            (TASK, 0, "", "web"), (TASK, 1, "enter the grey room", "web"), (TASK + 1, 0, "", "web")]
+        assert sorted((r["task_id"], r["attempt"], r["correction_before"], r["typed"], r["undone"], r["source"])
+                      for r in rows) == [
+            (TASK, 0, "", "", False, "web"), (TASK, 1, "enter the grey room", "enter the grey room", True, "web"),
+            (TASK, 1, "enter the grey room", "enter the gry room", False, "web"),  # typed, and what was sent
+            (TASK + 1, 0, "", "", False, "web")]
+        import pyarrow.parquet as pq
+        downloaded = pq.read_table(session).to_pylist()  # the same rows as the episode's log file
+        assert downloaded == [r for r in rows if r["episode"] == downloaded[0]["episode"]] and len(downloaded) == 3
     finally:
         server.terminate()
         server.wait(timeout=30)
@@ -317,3 +382,58 @@ def test_serve_refuses_a_bad_port_split_or_taken_port_in_one_line(run, capsys):
             assert err.startswith("gpl-dist: error:") and needle in err and "\n" not in err, err
     finally:
         taken.close()
+
+
+def test_twenty_requests_for_one_unfinished_gif_render_it_once(teacher, tmp_path):
+    """Issue 41, item 7: concurrent requests for a picture in flight wait for that render (loopback
+    server, bounded count); the cache and the renders at once are bounded, so memory is too."""
+    import threading
+    import urllib.request
+
+    import psutil
+    import uvicorn
+
+    from gpl_dist.app.teach_web import create_app
+
+    app = create_app(teacher, tmp_path)
+    port = free_ports(1)[0]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    try:
+        while not server.started:
+            time.sleep(0.05)
+        base = f"http://127.0.0.1:{port}"
+        request = urllib.request.Request(f"{base}/api/episodes", data=b'{"task_id": 263, "seed": 3}',
+                                         headers={"Content-Type": "application/json"})
+        view = json.loads(urllib.request.urlopen(request, timeout=300).read())
+        url = base + view["attempts"][0]["gif_url"]
+        process, bodies, peak = psutil.Process(), [], [0]
+        before = process.memory_info().rss
+        done = threading.Event()
+
+        def watch():
+            while not done.is_set():
+                peak[0] = max(peak[0], process.memory_info().rss)
+                time.sleep(0.02)
+
+        def fetch():
+            bodies.append(urllib.request.urlopen(url, timeout=300).read())
+
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        clients = [threading.Thread(target=fetch) for _ in range(20)]
+        for c in clients:
+            c.start()
+        for c in clients:
+            c.join()
+        done.set()
+        watcher.join()
+        assert len(bodies) == 20 and len(set(bodies)) == 1 and bodies[0][:6] == b"GIF89a"
+        assert app.state.pictures.renders == 1  # drawn once; 19 waited for it
+        assert peak[0] - before < 400 * 2**20  # one render's frames, not twenty (20 renders grew 1.7 GB)
+        urllib.request.urlopen(url, timeout=300).read()
+        assert app.state.pictures.renders == 1  # and kept for the next one
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)

@@ -97,6 +97,29 @@ def _loopback_only():
             os.environ[_LOCAL_ONLY_ENV] = before_env
 
 
+#: The logger of Ray's notice that a new local cluster turned token authentication on.
+_AUTH_LOGGER = "ray._private.authentication.authentication_token_setup"
+
+
+class _DropAuthEnabledNotice(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not record.getMessage().startswith("Token authentication is enabled for this Ray cluster")
+
+
+@contextmanager
+def _quiet_local_auth_notice():
+    """Drop Ray's "Token authentication is enabled" notice while a local cluster starts: it is
+    printed on every run and asks nothing of the user (the cluster listens on loopback only, and
+    authentication stays on as Ray sets it). Its warning that authentication is *disabled*, and
+    everything about a cluster joined with ``--address``, still shows."""
+    logger, notice = logging.getLogger(_AUTH_LOGGER), _DropAuthEnabledNotice()
+    logger.addFilter(notice)
+    try:
+        yield
+    finally:
+        logger.removeFilter(notice)
+
+
 #: Seconds to wait for a TCP connection to a cluster's GCS before giving up.
 CONNECT_TIMEOUT_S = 10.0
 
@@ -125,7 +148,7 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
         check_reachable(address)
         ray.init(address=address, **{"log_to_driver": True, **kwargs})
         return False
-    with _loopback_only():
+    with _loopback_only(), _quiet_local_auth_notice():
         ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,
                  **{"log_to_driver": True, **kwargs})
     return True

@@ -6,8 +6,10 @@ drives them and writes files.
 
 from __future__ import annotations
 
+import textwrap
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from PIL import Image
@@ -35,27 +37,64 @@ def parse_actions(text: str) -> list[int]:
         raise UsageError(f"actions must be integers separated by commas or spaces, got {raw[:60]!r}") from None
 
 
+@dataclass(frozen=True)
+class Replay:
+    """An attempt stepped again from its reset seed and actions (``replay_attempt``).
+
+    Attributes:
+        frames: RGB frames of the start state and the state after each action (empty unless drawn).
+        points: per frame, the picture's moving things in pixels (``env.picture_points()``).
+        completion: float ``(T + 1,)`` the completion at the start and after each action.
+        success: bool ``(T + 1,)`` whether the task is solved at the start and after each action.
+    """
+
+    frames: list[np.ndarray]
+    points: list[tuple[tuple[float, float], ...]]
+    completion: np.ndarray
+    success: np.ndarray
+
+    @property
+    def solved_at(self) -> int | None:
+        """The first step (actions taken) at which the task was solved; None if never."""
+        hits = np.flatnonzero(self.success)
+        return int(hits[0]) if hits.size else None
+
+
+def replay_attempt(domain_name: str, task_id: int, actions: Sequence[int] | np.ndarray, reset_seed: int,
+                   render: bool = True) -> Replay:
+    """Step ``task_id``'s env from ``reset_seed`` through ``actions``, drawing each state when ``render``."""
+    domain = get_domain(domain_name)
+    env: Any = domain.make_env(task_id, render_mode="rgb_array" if render else None)  # its picture_points()
+    _, info = env.reset(seed=reset_seed)
+    frames, points = ([np.asarray(env.render())], [env.picture_points()]) if render else ([], [])
+    completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
+    planned = np.asarray(actions).tolist()
+    for t, a in enumerate(planned[: domain.steps_per_attempt]):
+        if not 0 <= a < domain.num_actions:
+            raise UsageError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
+        _, _, _, _, info = env.step(a)
+        completion.append(float(info.get("completion", 0.0)))
+        success.append(bool(info.get("success", False)))
+        if render:
+            frames.append(np.asarray(env.render()))
+            points.append(env.picture_points())
+    return Replay(frames, points, np.asarray(completion), np.asarray(success, dtype=bool))
+
+
 def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None = None, expert: bool = False,
                    seed: int = 0, max_steps: int | None = None) -> list[np.ndarray]:
     """RGB frames of the task's start state and each state after ``actions`` (or the expert's)."""
+    if not expert:
+        return replay_attempt(domain_name, task_id, list(actions or ())[: max_steps or None], seed).frames
     domain = get_domain(domain_name)
     env = domain.make_env(task_id, render_mode="rgb_array")
     env.reset(seed=seed)
     frames: list[np.ndarray] = [np.asarray(env.render())]
-    if actions is None and not expert:
-        return frames
-    steps = max_steps or domain.steps_per_attempt
-    policy = None
-    if expert:
-        policy = make_expert(env)
-    planned = list(actions or ())
-    for t in range(steps if expert else min(len(planned), steps)):
-        a = policy.act(env) if policy is not None else int(planned[t])
-        if not 0 <= a < domain.num_actions:
-            raise UsageError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
-        _, _, _, _, info = env.step(a)
+    policy = make_expert(env)
+    for _ in range(max_steps or domain.steps_per_attempt):
+        _, _, _, _, info = env.step(policy.act(env))
         frames.append(np.asarray(env.render()))
-        if expert and info.get("success"):
+        if info.get("success"):
             break  # the expert's attempt ends where the task is solved, in either domain
     return frames
 
@@ -71,12 +110,29 @@ def write_picture(frames: list[np.ndarray], out: str | Path, fps: int = 8) -> Pa
     return out
 
 
-#: Pixels of the caption bar under each frame of a policy's attempts.
-CAPTION_PX = 44
-#: Characters of a caption line (a correction is cut there, with "...").
+#: Pixels of one caption line under each frame of a policy's attempts.
+CAPTION_LINE_PX = 20
+#: Characters of a caption line: longer captions wrap onto more lines, never cut.
 CAPTION_CHARS = 48
 #: Font size of the captions, in pixels (readable when the page shows the GIF 300 px wide).
 CAPTION_FONT_PX = 14
+#: Colours of the drawn paths (one per ``picture_points`` entry) and of the mark where the task was solved.
+PATH_RGB = ((230, 40, 40), (40, 120, 230))
+SOLVED_RGB = (20, 200, 60)
+
+
+def caption_lines(text: str) -> list[str]:
+    """``text`` wrapped into caption lines of at most ``CAPTION_CHARS`` characters (a long word is split)."""
+    return textwrap.wrap(text, CAPTION_CHARS) or [""]
+
+
+def step_caption(t: int, last: int, replay: Replay) -> str:
+    """``step t/T``, the completion then, and where the task was solved once it has been."""
+    solved = replay.solved_at
+    text = f"step {t}/{last}: completion {replay.completion[t]:.2f}"
+    if solved is not None and t >= solved:
+        text += f", solved at step {solved}" + (" (runs on)" if t > solved else "")
+    return text
 
 
 def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, seed: int = 0,
@@ -101,24 +157,55 @@ def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, 
     if result.failures:
         raise UsageError(str(result.failures[0]))
     frames: list[np.ndarray] = []
+    tops = []
     for k, att in enumerate(result.attempts):
         said = att.instruction if k == 0 else result.attempts[k - 1].correction
-        top = f"attempt {k + 1}/{len(result.attempts)}: {'instruction' if k == 0 else 'correction'}: {said}"
-        bottom = f"completion {att.completion:.2f}" + (" - solved" if att.success else "")
-        frames += captioned_attempt_frames(domain.name, task_id, att.actions, att.seed, top, bottom, frame_stride)
+        tops.append(f"attempt {k + 1}/{len(result.attempts)}: {'instruction' if k == 0 else 'correction'}: {said}")
+    lines = max(len(caption_lines(top)) for top in tops)  # every frame of the GIF the same size
+    for att, top in zip(result.attempts, tops):
+        frames += captioned_attempt_frames(domain.name, task_id, att.actions, att.seed, top, frame_stride, top_lines=lines)
     return frames
 
 
-def captioned_attempt_frames(domain_name: str, task_id: int, actions: np.ndarray, reset_seed: int, top: str,
-                             bottom: str, frame_stride: int | None = None) -> list[np.ndarray]:
-    """An attempt replayed from ``reset_seed`` and ``actions``, every ``frame_stride``-th step
-    (default: about 40 frames), each frame captioned ``top`` over ``step t`` (``bottom`` on the
-    last, which is held for a moment)."""
+def frame_steps(domain_name: str, length: int, frame_stride: int | None = None) -> list[int]:
+    """The steps an attempt of ``length`` actions is drawn at: every ``frame_stride``-th (default
+    about 40 frames) and the last."""
     stride = frame_stride or max(1, get_domain(domain_name).steps_per_attempt // 40)
-    drawn = attempt_frames(domain_name, task_id, np.asarray(actions).tolist(), seed=reset_seed)
-    last = len(drawn) - 1
-    frames = [_captioned(drawn[t], top, bottom if t == last else f"step {t}") for t in [*range(0, last, stride), last]]
+    return [*range(0, length, stride), length]
+
+
+def captioned_attempt_frames(domain_name: str, task_id: int, actions: np.ndarray, reset_seed: int, top: str,
+                             frame_stride: int | None = None, top_lines: int | None = None) -> list[np.ndarray]:
+    """An attempt replayed from ``reset_seed`` and ``actions`` at ``frame_steps``, each frame
+    captioned with ``top`` (wrapped, padded to ``top_lines`` lines) over ``step_caption``; the last
+    frame, with the path drawn, is held for a moment."""
+    replay = replay_attempt(domain_name, task_id, actions, reset_seed)
+    last = len(replay.frames) - 1
+    steps = frame_steps(domain_name, last, frame_stride)
+    lines = caption_lines(top)
+    lines += [""] * max(0, (top_lines or 0) - len(lines))
+    frames = [_captioned(replay.frames[t] if t < last else still_frame(replay), [*lines, step_caption(t, last, replay)])
+              for t in steps]
     return frames + [frames[-1]] * 6
+
+
+def still_frame(replay: Replay) -> np.ndarray:
+    """The attempt's final state with the path of each moving thing drawn over it and a ring where
+    the task was first solved."""
+    from PIL import ImageDraw
+
+    image = Image.fromarray(replay.frames[-1])
+    draw = ImageDraw.Draw(image)
+    width = max(2, image.width // 150)
+    for i in range(len(replay.points[0])):
+        path = [p[i] for p in replay.points]
+        draw.line(path, fill=PATH_RGB[i % len(PATH_RGB)], width=width, joint="curve")
+    solved = replay.solved_at
+    if solved is not None:
+        for x, y in replay.points[solved][-1:]:
+            r = image.width / 40
+            draw.ellipse((x - r, y - r, x + r, y + r), outline=SOLVED_RGB, width=width + 1)
+    return np.asarray(image)
 
 
 def gif_bytes(frames: list[np.ndarray], fps: int = 8) -> bytes:
@@ -131,18 +218,17 @@ def gif_bytes(frames: list[np.ndarray], fps: int = 8) -> bytes:
     return out.getvalue()
 
 
-def _captioned(frame: np.ndarray, top: str, bottom: str, width_px: int = 400) -> np.ndarray:
-    """``frame``, scaled to ``width_px`` wide, over a white bar holding two lines of text."""
+def _captioned(frame: np.ndarray, lines: list[str], width_px: int = 400) -> np.ndarray:
+    """``frame``, scaled to ``width_px`` wide, over a white bar holding ``lines`` of text."""
     from PIL import ImageDraw, ImageFont
 
     image = Image.fromarray(frame)
     image = image.resize((width_px, round(image.height * width_px / image.width)))
     w, h = image.size
-    canvas = Image.new("RGB", (w, h + CAPTION_PX), "white")
+    canvas = Image.new("RGB", (w, h + CAPTION_LINE_PX * len(lines) + 4), "white")
     canvas.paste(image, (0, 0))
     draw = ImageDraw.Draw(canvas)
     font = ImageFont.load_default(size=CAPTION_FONT_PX)
-    cut = lambda text: text if len(text) <= CAPTION_CHARS else text[: CAPTION_CHARS - 3] + "..."  # noqa: E731
-    draw.text((6, h + 3), cut(top), fill="black", font=font)
-    draw.text((6, h + 23), cut(bottom), fill="black", font=font)
+    for i, line in enumerate(lines):
+        draw.text((6, h + 3 + CAPTION_LINE_PX * i), line, fill="black", font=font)
     return np.asarray(canvas)

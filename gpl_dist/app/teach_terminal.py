@@ -1,12 +1,13 @@
 """``gpl-dist teach``: teach a trained policy by typing corrections in the terminal.
 
-Each attempt is printed as text (the path and the final state), with its completion and the path
-of a GIF of it; then the person types the next correction. Lines starting with ``:`` are commands:
-``:hint`` (what the run's oracle would say), ``:quit``. A correction with words the policy does
-not know, or that is none of the phrasings it was trained on, is shown with the closest known
-phrasing before it is sent: Enter sends it as typed, ``:use`` the closest one. Lines typed while
-an attempt runs are dropped (they were typed before seeing it). Every attempt is logged
-(``gpl_dist.app.teaching``).
+Each attempt is printed as text (the path, the final state, the step it solved the task at), with
+its completion and the path of a GIF of it; then the person types the next correction. Lines
+starting with ``:`` are commands: ``:hint`` (what the run's oracle would say), ``:undo`` (take the
+last correction back), ``:quit``. A correction with words the policy does not know, or that is none
+of the phrasings it was trained on, is shown with the closest known phrasing before it is sent:
+Enter sends it as typed, ``:use`` the closest one (the log keeps both what was typed and what was
+sent). Lines typed while an attempt runs are dropped (they were typed before seeing it). Every
+attempt is logged (``gpl_dist.app.teaching``).
 """
 
 from __future__ import annotations
@@ -14,9 +15,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, TextIO
 
-from gpl_dist.app.teaching import TaughtAttempt, TeachingEpisode, write_episode_log
+from gpl_dist.app.teaching import TaughtAttempt, TeachingEpisode, TeachingError, write_episode_log
 
-HELP = "type a correction; commands: ':hint' (what the oracle would say), ':quit'"
+HELP = "type a correction; commands: ':hint' (what the oracle would say), ':undo' (take the last correction back), ':quit'"
 
 
 def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: bool = False,
@@ -41,8 +42,9 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
         f"'{episode.instruction}'")
     log_path = ""
     correction: str | None = None
+    typed: str | None = None
     while True:
-        attempt = episode.attempt(correction)
+        attempt = episode.attempt(correction, typed)
         log_path = write_episode_log(episode, log_dir)
         gif = gif_dir / f"{episode.episode_id}-attempt{attempt.index}.gif"
         gif.write_bytes(episode.gif(attempt.index))
@@ -53,9 +55,11 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
             break
         if always_hint:
             say(f"hint: the oracle would say '{episode.hint()}'")
-        correction = _read_correction(episode, read_line, say)
-        if correction is None:
+        read = _read_correction(episode, read_line, say)
+        if read is None:
             break
+        correction, typed = read
+    log_path = write_episode_log(episode, log_dir)  # an ':undo' after the last attempt is logged too
     say(f"log: {log_path} (pyarrow.dataset.dataset('{log_dir}') reads every episode)")
     return Path(log_path)
 
@@ -68,8 +72,10 @@ def _show(say: Callable[[str], None], attempt: TaughtAttempt, gif: Path) -> None
 
 
 def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
-                     say: Callable[[str], None]) -> str | None:
-    """The next usable correction, or None to stop (``:quit``, end of input).
+                     say: Callable[[str], None]) -> tuple[str, str | None] | None:
+    """The next usable correction and, when the closest phrasing is sent in its place, what was
+    typed; None to stop (``:quit``, end of input). ``:undo`` takes the last correction back and
+    shows the attempt before it again.
 
     A correction with unknown words, or that is none of the phrasings the policy was trained on,
     is shown with the closest one first: Enter sends it as typed, ``:use`` sends the closest one.
@@ -86,10 +92,19 @@ def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
             return None
         text = line.strip()
         if pending is not None and text in ("", ":use"):
-            return pending[0] if text == "" else pending[1]
+            return (pending[0], None) if text == "" else (pending[1], pending[0])
         pending = None
         if text in (":quit", ":q"):
             return None
+        if text == ":undo":
+            try:
+                undone = episode.undo()
+            except TeachingError as err:
+                say(str(err))
+                continue
+            say(f"undone: attempt {undone.index + 1} (after '{undone.said_before}'); back to attempt {undone.index}:")
+            say(episode.attempts[-1].picture)
+            continue
         if text == ":hint":
             say(f"hint: the oracle would say '{episode.hint()}'")
             continue
@@ -101,7 +116,7 @@ def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
             say(f"not sent: {check.problem}")
             continue
         if check.suggestion is None:
-            return check.text
+            return check.text, None
         if check.unknown_words:
             say(f"unknown words: {', '.join(w[:40] for w in check.unknown_words[:8])} (the policy reads them as <unk>); "
                 f"closest known phrasing: '{check.suggestion}'")

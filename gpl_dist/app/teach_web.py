@@ -10,10 +10,21 @@ teach separate episodes. The JSON API:
 ``POST /api/episodes``                      start an episode (task id, or an instruction, or a
                                             drawn task; a seed) and make its first attempt
 ``POST /api/episodes/{id}/attempts``        a correction, and the attempt that follows it
+``POST /api/episodes/{id}/undo``            take the last correction back
 ``GET  /api/episodes/{id}/hint``            what the run's oracle would say now
-``GET  /api/episodes/{id}/attempts/{k}.gif``  attempt ``k`` as an animated GIF
+``POST /api/episodes/{id}/oracle``          the next attempt with the oracle's correction, beside
+                                            the episode (not added to it)
+``GET  /api/episodes/{id}/log.parquet``     the episode's rows of the teaching log, as a file
+``GET  /api/episodes/{id}/attempts/{k}.gif``  attempt ``k`` as an animated GIF (``?oracle=1``: the
+                                            oracle's branch; so for the two below)
+``GET  /api/episodes/{id}/attempts/{k}/strip.png``  its frames side by side (the page's player)
+``GET  /api/episodes/{id}/attempts/{k}/still.png``  its final state, path drawn, solved step ringed
 ``POST /api/check``                         unknown words and the closest phrasing, as one types
 ==========================================  =================================================
+
+Pictures are made by ``Pictures``: each once, however many requests wait for it (the later ones
+wait for the render in flight), at most ``RENDERS_AT_ONCE`` at a time, and at most
+``PICTURE_BUDGET_BYTES`` of them kept (least recently used go first; they are drawn again if asked).
 
 A request that cannot be served answers 4xx with ``{"detail": "<one sentence>"}``; no request
 changes any episode but its own. At most ``MAX_EPISODES`` episodes are kept (the oldest go first);
@@ -25,7 +36,9 @@ from __future__ import annotations
 import ipaddress
 import threading
 from collections import OrderedDict
+from concurrent.futures import Future
 from pathlib import Path
+from typing import Callable
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
@@ -36,10 +49,13 @@ from pydantic import BaseModel, Field, StrictInt
 from gpl_dist.app.teaching import (
     MAX_SEED,
     MAX_TEXT_CHARS,
+    STRIP_FRAME_PX,
+    TaughtAttempt,
     Teacher,
     TeachingEpisode,
     TeachingError,
     check_correction,
+    episode_log_bytes,
     instruction_of,
     write_episode_log,
 )
@@ -51,6 +67,53 @@ MAX_EPISODES = 64
 #: person's 10,000 characters to get the checker's message rather than a generic one.
 MAX_FIELD_CHARS = 50 * MAX_TEXT_CHARS
 _PAGE = Path(__file__).parent / "web" / "teach.html"
+#: Pictures drawn at once (each holds an attempt's frames in memory while it is drawn).
+RENDERS_AT_ONCE = 2
+#: Bytes of finished pictures kept for later requests.
+PICTURE_BUDGET_BYTES = 128 * 2**20
+
+
+class Pictures:
+    """Finished pictures by key, and the renders in flight: a picture asked for while it is being
+    drawn is waited for, not drawn again (``renders`` counts the renders made)."""
+
+    def __init__(self, budget_bytes: int = PICTURE_BUDGET_BYTES, at_once: int = RENDERS_AT_ONCE):
+        self.budget_bytes = budget_bytes
+        self.renders = 0
+        self._done: OrderedDict[tuple, bytes] = OrderedDict()
+        self._kept_bytes = 0
+        self._pending: dict[tuple, Future] = {}
+        self._lock = threading.Lock()
+        self._slots = threading.BoundedSemaphore(at_once)
+
+    def get(self, key: tuple, render: Callable[[], bytes]) -> bytes:
+        with self._lock:
+            if key in self._done:
+                self._done.move_to_end(key)
+                return self._done[key]
+            waiting = self._pending.get(key)
+            if waiting is None:
+                mine: Future = Future()
+                self._pending[key] = mine
+        if waiting is not None:
+            return waiting.result()
+        try:
+            with self._slots:
+                data = render()
+                self.renders += 1
+        except BaseException as err:
+            with self._lock:
+                del self._pending[key]
+            mine.set_exception(err)
+            raise
+        with self._lock:
+            del self._pending[key]
+            self._done[key] = data
+            self._kept_bytes += len(data)
+            while self._kept_bytes > self.budget_bytes and len(self._done) > 1:
+                self._kept_bytes -= len(self._done.popitem(last=False)[1])
+        mine.set_result(data)
+        return data
 
 
 class StartRequest(BaseModel):
@@ -62,9 +125,10 @@ class StartRequest(BaseModel):
 
 
 class CorrectionRequest(BaseModel):
-    """The correction a person typed."""
+    """The correction to send, and what the person typed when it is the closest phrasing put in its place."""
 
     correction: str = Field(max_length=MAX_FIELD_CHARS)
+    typed: str | None = Field(default=None, max_length=MAX_FIELD_CHARS)
 
 
 class CheckRequest(BaseModel):
@@ -83,14 +147,21 @@ class CheckView(BaseModel):
 
 
 class AttemptView(BaseModel):
-    """One attempt as the page shows it."""
+    """One attempt as the page shows it: ``strip_steps`` are the steps of the frames in its strip."""
 
     index: int
     said_before: str
+    typed: str
     unknown_words: list[str]
     completion: float
     success: bool
+    solved_at: int | None
+    steps: int
     gif_url: str
+    strip_url: str
+    still_url: str
+    strip_steps: list[int]
+    strip_frame_px: int
     picture: str
 
 
@@ -105,6 +176,7 @@ class EpisodeView(BaseModel):
     solved: bool
     corrections_left: int
     attempts: list[AttemptView]
+    oracle: AttemptView | None
 
 
 class Episodes:
@@ -129,15 +201,25 @@ class Episodes:
             return self._items[episode_id]
 
 
+def _attempt_view(episode: TeachingEpisode, a: TaughtAttempt, oracle: bool = False) -> AttemptView:
+    base = f"/api/episodes/{episode.episode_id}/attempts/{a.index}"
+    query = f"?v={a.key}" + ("&oracle=1" if oracle else "")  # a new attempt in an undone one's place: a new URL
+    return AttemptView(index=a.index, said_before=a.said_before, typed=a.typed,
+                       unknown_words=list(a.check.unknown_words) if a.check else [],
+                       completion=a.completion, success=a.success, solved_at=a.solved_at, steps=len(a.actions),
+                       picture=a.picture, gif_url=f"{base}.gif{query}", strip_url=f"{base}/strip.png{query}",
+                       still_url=f"{base}/still.png{query}", strip_steps=episode.strip_steps(a.index, oracle),
+                       strip_frame_px=STRIP_FRAME_PX)
+
+
 def _view(episode: TeachingEpisode) -> EpisodeView:
-    attempts = [AttemptView(index=a.index, said_before=a.said_before,
-                            unknown_words=list(a.check.unknown_words) if a.check else [],
-                            completion=a.completion, success=a.success, picture=a.picture,
-                            gif_url=f"/api/episodes/{episode.episode_id}/attempts/{a.index}.gif")
-                for a in episode.attempts]
+    attempts = [_attempt_view(episode, a) for a in episode.attempts]
+    n = len(episode.attempts)  # the oracle's attempt at the next index, or beside the person's latest
+    branch = episode.oracle_branch.get(n) or (episode.oracle_branch.get(n - 1) if n > 1 else None)
     return EpisodeView(episode_id=episode.episode_id, task_id=episode.task_id, split=episode.split, seed=episode.seed,
                        instruction=episode.instruction, solved=episode.solved,
-                       corrections_left=episode.corrections_left, attempts=attempts)
+                       corrections_left=episode.corrections_left, attempts=attempts,
+                       oracle=_attempt_view(episode, branch, oracle=True) if branch else None)
 
 
 def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str = "127.0.0.1") -> FastAPI:
@@ -148,6 +230,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
     if _is_loopback(host):
         app.add_middleware(TrustedHostMiddleware, allowed_hosts=["127.0.0.1", "localhost", "[::1]"])
     episodes = Episodes()
+    pictures = app.state.pictures = Pictures()
     log_dir = out_dir / "log"
     domain = teacher.domain
 
@@ -195,17 +278,29 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
         episodes.add(episode)
         return _view(episode)
 
-    @app.post("/api/episodes/{episode_id}/attempts", response_model=EpisodeView)
-    def correct(episode_id: str, body: CorrectionRequest) -> EpisodeView:
+    def changing(episode_id: str, change: Callable[[TeachingEpisode], object], busy: str) -> EpisodeView:
         episode, lock = episodes.get(episode_id)
         if not lock.acquire(blocking=False):
-            raise HTTPException(409, "this episode is making an attempt already: wait for it")
+            raise HTTPException(409, busy)
         try:
-            episode.attempt(body.correction)
+            change(episode)
             write_episode_log(episode, log_dir)
+            return _view(episode)
         finally:
             lock.release()
-        return _view(episode)
+
+    @app.post("/api/episodes/{episode_id}/attempts", response_model=EpisodeView)
+    def correct(episode_id: str, body: CorrectionRequest) -> EpisodeView:
+        return changing(episode_id, lambda e: e.attempt(body.correction, body.typed),
+                        "this episode is making an attempt already: wait for it")
+
+    @app.post("/api/episodes/{episode_id}/undo", response_model=EpisodeView)
+    def undo(episode_id: str) -> EpisodeView:
+        return changing(episode_id, lambda e: e.undo(), "this episode is making an attempt: undo after it")
+
+    @app.post("/api/episodes/{episode_id}/oracle", response_model=EpisodeView)
+    def oracle(episode_id: str) -> EpisodeView:
+        return changing(episode_id, lambda e: e.oracle_attempt(), "this episode is making an attempt: ask after it")
 
     @app.get("/api/episodes/{episode_id}/hint")
     def hint(episode_id: str) -> dict:
@@ -217,10 +312,32 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
         finally:
             lock.release()
 
-    @app.get("/api/episodes/{episode_id}/attempts/{index}.gif")
-    def gif(episode_id: str, index: int) -> Response:
+    @app.get("/api/episodes/{episode_id}/log.parquet")
+    def download(episode_id: str) -> Response:
+        episode, lock = episodes.get(episode_id)
+        with lock:
+            data = episode_log_bytes(episode)
+        return Response(data, media_type="application/vnd.apache.parquet",
+                        headers={"Content-Disposition": f'attachment; filename="teaching-{episode.episode_id}.parquet"'})
+
+    def picture(episode_id: str, index: int, oracle: int, kind: str, media: str) -> Response:
         episode, _ = episodes.get(episode_id)
-        return Response(episode.gif(index), media_type="image/gif", headers={"Cache-Control": "max-age=3600"})
+        a = episode.find(index, bool(oracle))
+        draw = {"gif": episode.gif, "strip": episode.film_strip, "still": episode.still}[kind]
+        data = pictures.get((episode_id, a.key, kind), lambda: draw(index, bool(oracle)))
+        return Response(data, media_type=media, headers={"Cache-Control": "max-age=3600"})
+
+    @app.get("/api/episodes/{episode_id}/attempts/{index}.gif")
+    def gif(episode_id: str, index: int, oracle: int = 0) -> Response:
+        return picture(episode_id, index, oracle, "gif", "image/gif")
+
+    @app.get("/api/episodes/{episode_id}/attempts/{index}/strip.png")
+    def strip(episode_id: str, index: int, oracle: int = 0) -> Response:
+        return picture(episode_id, index, oracle, "strip", "image/png")
+
+    @app.get("/api/episodes/{episode_id}/attempts/{index}/still.png")
+    def still(episode_id: str, index: int, oracle: int = 0) -> Response:
+        return picture(episode_id, index, oracle, "still", "image/png")
 
     return app
 

@@ -38,27 +38,29 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from gpl_dist.app.rendering import captioned_attempt_frames, gif_bytes
-from gpl_dist.corrections import make_corrector
-from gpl_dist.domains import get_domain
+from gpl_dist.app.policy import load_policy
+from gpl_dist.app.rendering import (
+    captioned_attempt_frames,
+    frame_steps,
+    gif_bytes,
+    replay_attempt,
+    still_frame,
+)
 from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary, split_words
-from gpl_dist.records import Correction
+from gpl_dist.records import Attempt
 from gpl_dist.roles import DomainSpec
-from gpl_dist.seeding import correction_rng
 from gpl_dist.splits import split_of, split_tasks
 from gpl_dist.variants import TEACHABLE
-from learner.checkpoint import LATEST
-from learner.evaluate import load_trained_policy
 from storage.fs import resolve
-from workers.loop import Rollout
 
 #: Longest correction or instruction a person may type, in characters.
 MAX_TEXT_CHARS = 200
 #: Corrections an episode may take (the runs train with 5; meta-test reaches 10).
 DEFAULT_MAX_CORRECTIONS = 10
-#: Kind recorded for a person's correction in ``Attempt.correction_kind``.
-PERSON_KIND = "person"
+#: Frames of an attempt in its film strip (``TeachingEpisode.film_strip``), and their width in pixels.
+STRIP_FRAMES = 34
+STRIP_FRAME_PX = 220
 #: Policy variants that read the words of a correction (GPR reads a reward; the others none).
 TEACHABLE_VARIANTS = TEACHABLE
 
@@ -155,6 +157,11 @@ class TaughtAttempt:
         hint_shown: whether the oracle's hint was asked for before this attempt's correction.
         started_at: Unix time the attempt was asked for.
         seconds: wall time to make it.
+        record: the rollout's ``Attempt`` (the trajectory; its ``correction`` is the one after it).
+        typed: what the person typed, when the policy was sent the closest known phrasing instead
+            (``:use`` in the terminal, "use it" in the page); else ``said_before``.
+        solved_at: the step at which the attempt first solved the task (None: never); it runs on after.
+        key: this attempt's identity (an undone attempt and the one made in its place differ).
     """
 
     index: int
@@ -168,6 +175,10 @@ class TaughtAttempt:
     hint_shown: bool
     started_at: float
     seconds: float
+    record: Attempt
+    typed: str
+    solved_at: int | None
+    key: str = field(default_factory=lambda: uuid.uuid4().hex[:12])
 
 
 class Teacher:
@@ -180,18 +191,18 @@ class Teacher:
     def __init__(self, run_dir: str | Path, checkpoint: str | None = None,
                  max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False):
 
-        self.run_dir = str(Path(run_dir).resolve())
+        self.policy = load_policy(run_dir, checkpoint, greedy=greedy)
+        self.run_dir = self.policy.run_dir
         #: the checkpoint file taught (absolute), as the log records it
-        self.checkpoint = str(Path(checkpoint).resolve() if checkpoint else Path(self.run_dir) / "checkpoints" / LATEST)
-        self.cfg, self.model, self.round_index = load_trained_policy(run_dir, checkpoint)
+        self.checkpoint = self.policy.checkpoint
+        self.cfg, self.model, self.round_index = self.policy.cfg, self.policy.model, self.policy.round_index
         variant = self.cfg.model.variant
         if variant not in TEACHABLE_VARIANTS:
             raise TeachingError(f"the policy of {run_dir} (model.variant {variant}) does not read corrections in words: "
                                 f"teach a run of {', '.join(TEACHABLE_VARIANTS)}")
         if max_corrections < 1:
             raise TeachingError(f"max corrections must be at least 1, got {max_corrections}")
-        self.model.eval()
-        self.domain = _domain(self.cfg.env.domain)
+        self.domain = self.policy.domain
         self.max_corrections = max_corrections
         self.greedy = greedy
         self.lock = threading.Lock()  # one rollout at a time: they share the model and the cores
@@ -229,31 +240,17 @@ class Teacher:
         _check_seed(seed)
         return TeachingEpisode(self, int(task_id), int(seed), source)
 
-    def replay(self, task_id: int, seed: int, corrections: list[str]) -> tuple:
+    def replay(self, task_id: int, seed: int, corrections: list[str]) -> tuple[Attempt, ...]:
         """Attempts ``0..len(corrections)`` of ``task_id``, the ``k``-th after ``corrections[k-1]``."""
-
-        given = iter(corrections)
-
-        def person(env, rng) -> Correction:
-            return Correction(next(given), PERSON_KIND)
-
-        rollout = Rollout(self.domain, self.model, person, greedy=self.greedy,
-                          end_aligned=self.cfg.model.trajectory_ends_at_last_state)
         with self.lock:
-            result = rollout.run([task_id], len(corrections), seed, split="teach")
-        if result.failures:
-            raise TeachingError(str(result.failures[0]))
-        return result.attempts
+            try:
+                return self.policy.attempts(task_id, corrections, seed=seed)
+            except UsageError as err:
+                raise TeachingError(str(err)) from None
 
-    def oracle_hint(self, task_id: int, seed: int, attempt_index: int, reset_seed: int, actions: np.ndarray) -> str:
-        """What the run's oracle would say after the attempt (``actions`` replayed from ``reset_seed``)."""
-
-        env = self.domain.make_env(task_id)
-        env.reset(seed=reset_seed)
-        for a in actions.tolist():
-            env.step(a)
-        oracle = make_corrector(self.domain.name, self.cfg.env.correction_kind)
-        return oracle.correct(env, correction_rng(seed, task_id, attempt_index)).text
+    def oracle_hint(self, attempt: Attempt, seed: int) -> str:
+        """What the run's oracle would say after ``attempt`` (of an episode made with ``seed``)."""
+        return self.policy.oracle_correction(attempt, seed)
 
 
 #: Splits named in the log, the first holding the task (``gpl_dist.splits.split_of``).
@@ -273,16 +270,14 @@ def instruction_of(domain: DomainSpec, task_id: int) -> str:
     return str(env.instruction)
 
 
-def _domain(name: str) -> DomainSpec:
-
-    return get_domain(name)
-
-
 @dataclass
 class TeachingEpisode:
     """One person teaching one task: the attempts so far and the corrections between them.
 
-    Nothing of one episode is shared with another but the ``Teacher``'s read-only policy.
+    Nothing of one episode is shared with another but the ``Teacher``'s read-only policy. ``undo``
+    takes the last correction back (the attempt it led to is kept in ``undone`` and logged as
+    such); ``oracle_attempt`` makes the next attempt with the oracle's correction instead, beside
+    the episode (``oracle_branch``), without adding it.
     """
 
     teacher: Teacher
@@ -291,8 +286,9 @@ class TeachingEpisode:
     source: str
     episode_id: str = field(default_factory=lambda: uuid.uuid4().hex[:16])
     attempts: list[TaughtAttempt] = field(default_factory=list)
+    undone: list[TaughtAttempt] = field(default_factory=list)
+    oracle_branch: dict[int, TaughtAttempt] = field(default_factory=dict)
     _hint_asked: bool = False
-    _gifs: dict[int, bytes] = field(default_factory=dict)  # drawn once, on first request
 
     @property
     def instruction(self) -> str:
@@ -315,119 +311,206 @@ class TeachingEpisode:
         """``check_correction`` against this episode's policy (for highlighting as one types)."""
         return check_correction(self.teacher.domain, text, vocabulary=self.teacher.model.vocabulary)
 
-    def attempt(self, correction: str | None = None) -> TaughtAttempt:
+    def attempt(self, correction: str | None = None, typed: str | None = None) -> TaughtAttempt:
         """The next attempt: the first one without ``correction``, each later one after it.
+        ``typed`` is what the person typed when ``correction`` is the closest phrasing put in its place.
 
         ``TeachingError`` (and no change to the episode) when the correction is missing, given
         before the first attempt, unusable, or after the task is solved or the budget spent.
         """
-        given = correction is not None and correction.strip() != ""
-        if not self.attempts:
-            if given:
-                raise TeachingError("make the first attempt before correcting: it follows the instruction alone")
-            check = None
-        else:
-            if self.solved:
-                raise TeachingError("the task is solved: start a new episode to teach another")
-            if self.corrections_left <= 0:
-                raise TeachingError(f"this episode has used its {self.teacher.max_corrections} corrections: start a new one")
-            check = self.check(correction or "")
-            if check.problem:
-                raise TeachingError(check.problem)
+        check = self._checked(correction)
         started = time.time()
-        texts = [a.check.text for a in self.attempts[1:] if a.check] + ([check.text] if check else [])
-        replayed = self.teacher.replay(self.task_id, self.seed, texts)
-        self._check_replay(replayed)
-        new = replayed[-1]
-        taught = TaughtAttempt(
-            index=new.attempt_index, said_before=check.text if check else new.instruction, check=check,
-            completion=float(new.completion), success=bool(new.success), actions=new.actions.copy(),
-            reset_seed=int(new.seed), picture=self._picture(new.seed, new.actions), hint_shown=self._hint_asked,
-            started_at=started, seconds=time.time() - started)
+        taught = self._make([*self._sent(), check], started, typed)
         self.attempts.append(taught)
         self._hint_asked = False
         return taught
+
+    def undo(self) -> TaughtAttempt:
+        """Take the last correction back: its attempt leaves the episode (kept in ``undone``, and
+        logged with ``undone`` true); returns it. The episode replays from its seed, so the next
+        attempt after another correction is exactly what it would have been without the undone one."""
+        if len(self.attempts) < 2:
+            raise TeachingError("there is no correction to undo: the first attempt follows the instruction alone")
+        last = self.attempts.pop()
+        self.undone.append(last)
+        # an oracle's attempt after the undone one followed it: gone too (one at the undone index stays valid)
+        self.oracle_branch = {k: v for k, v in self.oracle_branch.items() if k <= len(self.attempts)}
+        return last
+
+    def oracle_attempt(self) -> TaughtAttempt:
+        """The next attempt as the run's oracle would have it corrected, made beside the episode."""
+        index = len(self.attempts)
+        if index in self.oracle_branch:
+            return self.oracle_branch[index]
+        check = self._checked(self.hint())
+        self.oracle_branch[index] = self._make([*self._sent(), check], time.time(), None)
+        return self.oracle_branch[index]
 
     def hint(self) -> str:
         """What the run's oracle would say about the latest attempt (``--hint``; the page's button)."""
         if not self.attempts:
             raise TeachingError("there is no attempt to correct yet: make the first attempt")
-        last = self.attempts[-1]
         self._hint_asked = True
-        return self.teacher.oracle_hint(self.task_id, self.seed, last.index, last.reset_seed, last.actions)
+        return self.teacher.oracle_hint(self.attempts[-1].record, self.seed)
 
-    def _check_replay(self, replayed: tuple) -> None:
-        if len(replayed) != len(self.attempts) + 1:
-            raise RuntimeError(f"replaying episode {self.episode_id} gave {len(replayed)} attempts, not {len(self.attempts) + 1}")
+    def _checked(self, correction: str | None) -> CorrectionCheck | None:
+        given = correction is not None and correction.strip() != ""
+        if not self.attempts:
+            if given:
+                raise TeachingError("make the first attempt before correcting: it follows the instruction alone")
+            return None
+        if self.solved:
+            raise TeachingError("the task is solved: start a new episode to teach another")
+        if self.corrections_left <= 0:
+            raise TeachingError(f"this episode has used its {self.teacher.max_corrections} corrections: start a new one")
+        check = self.check(correction or "")
+        if check.problem:
+            raise TeachingError(check.problem)
+        return check
+
+    def _sent(self) -> list[CorrectionCheck | None]:
+        return [a.check for a in self.attempts[1:]]
+
+    def _make(self, checks: list[CorrectionCheck | None], started: float, typed: str | None) -> TaughtAttempt:
+        texts = [c.text for c in checks if c is not None]
+        replayed = self.teacher.replay(self.task_id, self.seed, texts)
+        self._check_replay(replayed, len(texts) + 1)
+        new, check = replayed[-1], checks[-1] if checks else None
+        said = check.text if check else new.instruction
+        solved_at = replay_attempt(self.teacher.domain.name, self.task_id, new.actions, new.seed, render=False).solved_at
+        return TaughtAttempt(
+            index=new.attempt_index, said_before=said, check=check,
+            completion=float(new.completion), success=bool(new.success), actions=new.actions.copy(),
+            reset_seed=int(new.seed), picture=self._picture(new.seed, new.actions, solved_at), hint_shown=self._hint_asked,
+            started_at=started, seconds=time.time() - started, record=new, solved_at=solved_at,
+            typed=said if typed is None else _plain(typed)[:MAX_TEXT_CHARS])
+
+    def _check_replay(self, replayed: tuple, expected: int) -> None:
+        if len(replayed) != expected:
+            raise RuntimeError(f"replaying episode {self.episode_id} gave {len(replayed)} attempts, not {expected}")
         for old, again in zip(self.attempts, replayed):
             if not np.array_equal(old.actions, again.actions):
                 raise RuntimeError(f"replaying episode {self.episode_id}: attempt {old.index} came out differently")
 
-    def _picture(self, reset_seed: int, actions: np.ndarray) -> str:
+    def _picture(self, reset_seed: int, actions: np.ndarray, solved_at: int | None) -> str:
         env = self.teacher.domain.make_env(self.task_id, render_mode="ansi")
         env.reset(seed=reset_seed)
         for a in actions.tolist():
             env.step(a)
-        return str(env.render())
+        ran = len(actions)
+        note = (f"solved at step {solved_at} of {ran}" + (f" (the attempt ran on to step {ran})" if solved_at < ran else "")
+                if solved_at is not None else f"not solved in {ran} steps")
+        return f"{env.render()}\n{note}"
 
-    def gif(self, index: int) -> bytes:
-        """Attempt ``index`` as an animated GIF, captioned with what led to it and its completion."""
-
-        if not 0 <= index < len(self.attempts):
+    def find(self, index: int, oracle: bool = False) -> TaughtAttempt:
+        """Attempt ``index`` of the episode (or of the oracle's branch)."""
+        found = self.oracle_branch.get(index) if oracle else (self.attempts[index] if 0 <= index < len(self.attempts) else None)
+        if found is None:
             raise TeachingError(f"attempt {index} does not exist (this episode has {len(self.attempts)})")
-        if index in self._gifs:
-            return self._gifs[index]
-        a = self.attempts[index]
+        return found
+
+    def gif(self, index: int, oracle: bool = False) -> bytes:
+        """Attempt ``index`` as an animated GIF, captioned with what led to it (wrapped, whole), the
+        step, its completion and the step it solved the task at."""
+        a = self.find(index, oracle)
         top = f"attempt {index + 1}: {'instruction' if index == 0 else 'correction'}: {a.said_before}"
-        bottom = f"completion {a.completion:.2f}" + (" - solved" if a.success else "")
-        frames = captioned_attempt_frames(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed, top, bottom)
-        self._gifs[index] = gif_bytes(frames)
-        return self._gifs[index]
+        return gif_bytes(captioned_attempt_frames(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed, top))
+
+    def strip_steps(self, index: int, oracle: bool = False) -> list[int]:
+        """The steps ``film_strip`` draws attempt ``index`` at, in order."""
+        a = self.find(index, oracle)
+        return frame_steps(self.teacher.domain.name, len(a.actions), -(-len(a.actions) // (STRIP_FRAMES - 1)))
+
+    def film_strip(self, index: int, oracle: bool = False) -> bytes:
+        """Attempt ``index`` as one PNG: its frames at ``strip_steps``, ``STRIP_FRAME_PX`` wide, side by side."""
+        from PIL import Image
+
+        a = self.find(index, oracle)
+        replay = replay_attempt(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed)
+        steps = self.strip_steps(index, oracle)
+        frames = [Image.fromarray(replay.frames[t]) for t in steps]
+        h = round(frames[0].height * STRIP_FRAME_PX / frames[0].width)
+        strip = Image.new("RGB", (STRIP_FRAME_PX * len(frames), h), "white")
+        for i, f in enumerate(frames):
+            strip.paste(f.resize((STRIP_FRAME_PX, h)), (i * STRIP_FRAME_PX, 0))
+        return _png(strip)
+
+    def still(self, index: int, oracle: bool = False) -> bytes:
+        """Attempt ``index``'s final state as a PNG, its path drawn and the step it solved the task ringed."""
+        from PIL import Image
+
+        a = self.find(index, oracle)
+        return _png(Image.fromarray(still_frame(replay_attempt(self.teacher.domain.name, self.task_id, a.actions,
+                                                                a.reset_seed))))
 
     def log_rows(self) -> list[dict]:
-        """One row per attempt (``LOG_SCHEMA``)."""
+        """One row per attempt made, undone ones included (``LOG_SCHEMA``), in the order they were made."""
         rows = []
-        for a in self.attempts:
+        for a, undone in sorted([(a, False) for a in self.attempts] + [(a, True) for a in self.undone],
+                                key=lambda x: x[0].started_at):
             rows.append({
                 "episode": self.episode_id, "source": self.source, "run_dir": self.teacher.run_dir,
                 "checkpoint": self.teacher.checkpoint, "checkpoint_round": self.teacher.round_index,
                 "greedy": self.teacher.greedy, "split": self.split,
                 "domain": self.teacher.domain.name,
                 "task_id": self.task_id, "seed": self.seed, "attempt": a.index, "instruction": self.instruction,
-                "correction": a.check.text if a.check else "",
+                "correction_before": a.check.text if a.check else "",
+                "typed": a.typed if a.check else "",
                 "correction_tokens": list(a.check.token_ids) if a.check else [],
                 "unknown_words": list(a.check.unknown_words) if a.check else [],
                 "hint_shown": a.hint_shown, "completion": a.completion, "success": a.success,
+                "solved_at": a.solved_at, "undone": undone,
                 "started_at": int(a.started_at * 1e6), "seconds": a.seconds,
             })
         return rows
 
 
-#: The teaching log, one row per attempt: the run dir and checkpoint file (absolute), greedy or
-#: sampled actions, the task's split; ``correction`` is the correction that led to the attempt
-#: (empty for attempt 0), with its token ids and unknown words; ``hint_shown`` whether the
-#: oracle's hint was asked for before it; ``started_at`` when the attempt was asked for. With the
-#: seed and the corrections, what an episode needs to be replayed.
+def _png(image: Any) -> bytes:
+    out = io.BytesIO()
+    image.save(out, format="PNG")
+    return out.getvalue()
+
+
+def _plain(text: str) -> str:
+    """``text`` as valid UTF-8 (a lone surrogate from a JSON body cannot be written to Parquet)."""
+    return str(text).encode("utf-8", "replace").decode("utf-8")
+
+
+#: The teaching log, one row per attempt made: the run dir and checkpoint file (absolute), greedy
+#: or sampled actions, the task's split. ``correction_before`` is the correction that led to the
+#: attempt, as the policy read it (empty for attempt 0), with its token ids and unknown words;
+#: ``typed`` what the person typed (different when the closest known phrasing was sent in its
+#: place). Note the buffer's attempts table names the other side: its ``correction`` is the one
+#: given *after* that attempt (``docs/buffer.md``). ``hint_shown``: the oracle's hint was asked for
+#: before the correction; ``solved_at``: the step at which the attempt first solved the task (null:
+#: never); ``undone``: the person took this attempt's correction back (the episode went on without
+#: it); ``started_at``: when the attempt was asked for. With the seed and the corrections of the rows
+#: not undone, what an episode needs to be replayed.
 LOG_SCHEMA = pa.schema([
     ("episode", pa.string()), ("source", pa.string()), ("run_dir", pa.string()), ("checkpoint", pa.string()),
     ("checkpoint_round", pa.int64()), ("greedy", pa.bool_()), ("split", pa.string()),
     ("domain", pa.string()), ("task_id", pa.int64()), ("seed", pa.int64()), ("attempt", pa.int64()),
-    ("instruction", pa.string()), ("correction", pa.string()), ("correction_tokens", pa.list_(pa.int64())),
+    ("instruction", pa.string()), ("correction_before", pa.string()), ("typed", pa.string()),
+    ("correction_tokens", pa.list_(pa.int64())),
     ("unknown_words", pa.list_(pa.string())), ("hint_shown", pa.bool_()), ("completion", pa.float64()),
-    ("success", pa.bool_()), ("started_at", pa.timestamp("us", tz="UTC")), ("seconds", pa.float64()),
+    ("success", pa.bool_()), ("solved_at", pa.int64()), ("undone", pa.bool_()),
+    ("started_at", pa.timestamp("us", tz="UTC")), ("seconds", pa.float64()),
 ])
+
+
+def episode_log_bytes(episode: TeachingEpisode) -> bytes:
+    """The episode's log as the bytes of a Parquet file (``LOG_SCHEMA``; the page's download)."""
+    import pyarrow.parquet as pq
+
+    sink = io.BytesIO()
+    pq.write_table(pa.Table.from_pylist(episode.log_rows(), schema=LOG_SCHEMA), sink)
+    return sink.getvalue()
 
 
 def write_episode_log(episode: TeachingEpisode, log_dir: str | Path) -> str:
     """Write (replace) ``<log_dir>/<episode>.parquet`` atomically; returns its path."""
-    import pyarrow.parquet as pq
-
-
-    table = pa.Table.from_pylist(episode.log_rows(), schema=LOG_SCHEMA)
-    sink = io.BytesIO()
-    pq.write_table(table, sink)
     loc = resolve(str(log_dir))
     loc.makedirs("")
     name = f"{episode.episode_id}.parquet"
-    loc.write_bytes_atomic(name, sink.getvalue())
+    loc.write_bytes_atomic(name, episode_log_bytes(episode))
     return loc.full_url(name)

@@ -194,7 +194,10 @@ class MultiRoomEnv(gym.Env):
     object, "exit" once it was in the hallway holding it, "enter <goal room>" once it was in the
     goal room holding it, "go to" on success. ``info["completion"] = (5 - min_subgoals_left) / 5``
     (best so far, as the authors' code). ``info["subgoals"]`` = list of (text, done) for the 5
-    subgoals, ``info["success"]`` = sticky success flag.
+    subgoals, ``info["success"]`` = sticky success flag. ``info["instruction"]`` is the task's
+    instruction (as minigrid's ``mission``) and ``info["instruction_ids"]`` its token ids
+    (``VOCABULARY.encode``, 32 ints, as a tuple), in every info; the observation
+    stays the array above, which is what the policy reads.
 
     ## Reward
     ``reward_mode="dense"`` (paper appendix, the PPO experts' reward), after the step:
@@ -210,8 +213,11 @@ class MultiRoomEnv(gym.Env):
     ``reward_mode="sparse"``: 1.0 on the step the task is first solved, else 0.0.
 
     ## Termination
-    Never terminates (``terminated`` is always False; success is sticky in ``info``). The env
-    itself truncates at 100 steps (``truncated=True`` from the 100th step on), as does the
+    By default never terminates (``terminated`` is always False; success is sticky in ``info``):
+    the paper's protocol runs every attempt its full 100 steps and reads the best completion, and
+    collection, evaluation and teaching use this default. ``terminate_on_success=True`` ends the
+    episode (``terminated=True``) on the step the task is first solved, as most gymnasium users
+    expect. The env itself truncates at 100 steps (``truncated=True`` from the 100th step on), as does the
     TimeLimit wrapper of ``gymnasium.make("gpl/MultiRoom-v0", task_id=...)``.
 
     ## Tasks and splits
@@ -226,20 +232,24 @@ class MultiRoomEnv(gym.Env):
     ## Rendering
     ``render_mode="rgb_array"``: the full grid, 32 px tiles (608x608x3 uint8).
     ``render_mode="ansi"``: the grid as text, two characters a cell, with the cells visited since
-    reset and a legend (``multiroom_render.render_text``).
+    reset and a legend (``multiroom_render.render_text``). ``picture_points()``: the agent's pixel in
+    the RGB picture (what a drawn path follows).
     """
 
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 10}
     domain_name = "multiroom"
 
-    def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
+    def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense",
+                 terminate_on_success: bool = False):
         self.task_id = check_task_id(task_id)
+        self.terminate_on_success = bool(terminate_on_success)
         self.render_mode, self.reward_mode = check_modes(render_mode, reward_mode)
         self.observation_space = spaces.Box(0, 255, (VIEW, VIEW, 6), np.uint8)
         self.action_space = spaces.Discrete(6)
         task, enc, goal_cells, obj_codes, texts = task_static(self.task_id)
         self.task: MultiRoomTask = task
         self.instruction: str = task.instruction
+        self.instruction_ids: tuple[int, ...] = tuple(int(i) for i in VOCABULARY.encode(task.instruction))
         self.subgoal_texts: tuple[str, ...] = texts
         self._enc0 = enc
         self._goal_cells = goal_cells
@@ -353,7 +363,8 @@ class MultiRoomEnv(gym.Env):
             reward = (100.0 * gained if gained > 0 else 0.0) - 0.01 * ((wx - x) ** 2 + (wy - y) ** 2) ** 0.5
         else:
             reward = 1.0 if newly_solved else 0.0
-        return self._obs(), reward, False, self._steps >= MAX_STEPS, self._info()
+        terminated = self._success and self.terminate_on_success
+        return self._obs(), reward, terminated, self._steps >= MAX_STEPS, self._info()
 
     def _obs(self) -> np.ndarray:
         x, y = XY[self._pos]
@@ -372,6 +383,8 @@ class MultiRoomEnv(gym.Env):
             "completion": n_done / NUM_SUBGOALS,
             "subgoals": [(t[0], n_done > 0), (t[1], n_done > 1), (t[2], n_done > 2), (t[3], n_done > 3), (t[4], n_done > 4)],
             "success": self._success,
+            "instruction": self.instruction,
+            "instruction_ids": self.instruction_ids,
         }
 
     def render(self):
@@ -394,6 +407,13 @@ class MultiRoomEnv(gym.Env):
                 cells[XY[c]] = ("floor", col, t, False)
         carried = self._obj_codes[self._carrying] if self._carrying >= 0 else (0, 0)
         return render_grid(cells, XY[self._pos], carried)
+
+    def picture_points(self) -> tuple[tuple[float, float], ...]:
+        """Where the agent is in the ``rgb_array`` picture, in pixels (x, y): what a drawn path follows."""
+        from gpl_dist.envs.multiroom_render import TILE
+
+        x, y = XY[self._pos]
+        return ((x * TILE + TILE / 2, y * TILE + TILE / 2),)
 
     # ------------------------------------------------------------------ privileged read-only state
     def can_drop_at(self, cell: int) -> bool:
@@ -449,7 +469,8 @@ class MultiRoomEnv(gym.Env):
 
 
 def make_env(task_id: int, **kwargs: Any) -> MultiRoomEnv:
-    """The unwrapped env of ``task_id`` (``kwargs``: ``render_mode``, ``reward_mode``)."""
+    """The unwrapped env of ``task_id`` (``kwargs``: ``render_mode``, ``reward_mode``,
+    ``terminate_on_success``)."""
     return MultiRoomEnv(task_id, **kwargs)
 
 

@@ -118,13 +118,18 @@ class RelocationEnv(gymnasium.Env):
     ``info["success"]`` is *not sticky*: the block is within 0.03 of the target now (the
     original's ``finished = d_final < 0.03``, consistent with a final-state completion);
     ``info["reached"]`` is the sticky version (within 0.03 at some step of the episode).
-    ``info["distance"]`` is ``d``.
+    ``info["distance"]`` is ``d``. ``info["instruction"]`` is the task's instruction (as minigrid's
+    ``mission``) and ``info["instruction_ids"]`` its token ids (``VOCABULARY.encode``, a tuple of ints);
+    the observation stays the 28 numbers the policy reads.
 
     **Reward.** ``reward_mode="dense"`` (the paper's PPO reward): ``-(|arm - block| + 5 |block -
     target|)``, ``arm`` being the gripper's ``arm`` site (0.02 ahead of the bar). ``"sparse"``:
     1.0 on the first step at which the block is within 0.03 of the target, 0.0 otherwise.
 
-    **Termination.** Never terminates; the env itself truncates after 350 steps (the registered
+    **Termination.** By default never terminates (the paper's protocol: every attempt runs its 350
+    steps and completion is read at the end; collection, evaluation and teaching use the default);
+    ``terminate_on_success=True`` ends the episode (``terminated=True``) on the first step the
+    block is within 0.03 of the target. The env itself truncates after 350 steps (the registered
     ``gpl/Relocation-v0`` adds an equivalent TimeLimit).
 
     **Reset.** Blocks at their start positions; gripper at the origin with U(+-0.05) noise on x, y
@@ -140,7 +145,8 @@ class RelocationEnv(gymnasium.Env):
 
     **Rendering.** ``render_mode="rgb_array"``: a top-down picture (400x400x3 uint8);
     ``"ansi"``: the same view as text, with the paths of the gripper and the goal block since reset
-    (``relocation_render.render_text``).
+    (``relocation_render.render_text``). ``picture_points()``: the gripper's and the goal block's
+    pixels in the RGB picture (what drawn paths follow).
 
     **State access** (expert, corrections, tests): ``data`` (MjData; ``qpos`` layout as the
     observation's indices 0-8), ``block_xy(i)``, ``initial_blocks`` (3, 2) at reset,
@@ -150,10 +156,13 @@ class RelocationEnv(gymnasium.Env):
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 100}
     domain_name = "relocation"
 
-    def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense"):
+    def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense",
+                 terminate_on_success: bool = False):
         self.task: RelocationTask = make_task(task_id)
         self.task_id: int = self.task.task_id
         self.instruction: str = self.task.instruction
+        self.instruction_ids: tuple[int, ...] = tuple(int(i) for i in VOCABULARY.encode(self.instruction))
+        self.terminate_on_success = bool(terminate_on_success)
         self.render_mode, self.reward_mode = check_modes(render_mode, reward_mode)
         self.observation_space = spaces.Box(-np.inf, np.inf, shape=(28,), dtype=np.float32)
         self.action_space = spaces.Discrete(4)
@@ -208,9 +217,18 @@ class RelocationEnv(gymnasium.Env):
     def _info(self, dist: float) -> dict:
         d0 = self.initial_distance
         return {"completion": 1.0 - min(dist, d0) / d0, "success": dist < SUCCESS_RADIUS,
-                "reached": self.reached, "distance": dist}
+                "reached": self.reached, "distance": dist,
+                "instruction": self.instruction, "instruction_ids": self.instruction_ids}
 
     # -- state access ----------------------------------------------------------------------------
+
+    def picture_points(self) -> tuple[tuple[float, float], ...]:
+        """Where the gripper and the goal block are in the ``rgb_array`` picture, in pixels (x, y):
+        what drawn paths follow."""
+        from gpl_dist.envs.relocation_render import picture_xy
+
+        q = self.data.qpos
+        return (picture_xy(float(q[0]), float(q[1])), picture_xy(float(q[self._bq]), float(q[self._bq + 1])))
 
     @property
     def gripper_pose(self) -> np.ndarray:
@@ -286,7 +304,8 @@ class RelocationEnv(gymnasium.Env):
         obs = self._obs
         obs[0:9] = q
         obs[19:28] = self._qvel
-        return obs.copy(), reward, False, self.steps >= EPISODE_STEPS, self._info(dist)
+        terminated = self.terminate_on_success and dist < SUCCESS_RADIUS
+        return obs.copy(), reward, terminated, self.steps >= EPISODE_STEPS, self._info(dist)
 
     def render(self):
         if self.render_mode == "ansi":

@@ -26,6 +26,11 @@ def _px(x: float, y: float) -> tuple[float, float]:
     return ((x - CENTER[0] + HALF) * _SCALE, (CENTER[1] + HALF - y) * _SCALE)
 
 
+def picture_xy(x: float, y: float) -> tuple[float, float]:
+    """The pixel (x, y) of table point ``(x, y)`` in ``render_topdown``'s picture."""
+    return _px(x, y)
+
+
 def _square(draw: ImageDraw.ImageDraw, x: float, y: float, rgb, outline=(0, 0, 0), width: int = 1) -> None:
     x0, y0 = _px(x - BLOCK_HALF, y + BLOCK_HALF)
     x1, y1 = _px(x + BLOCK_HALF, y - BLOCK_HALF)
