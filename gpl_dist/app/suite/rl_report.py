@@ -135,8 +135,10 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
     fig, axes = plt.subplots(1, len(fig_rows), figsize=(5.5 * len(fig_rows), 3.8), dpi=110, squeeze=False)
     kinds = sorted({kind for rows in fig_rows.values() for *_, kind in rows.values()})
     colour = {kind: f"C{i % 10}" for i, kind in enumerate(kinds)}  # a method has one colour in every panel
+    readable = {"rl-scratch": "PPO from scratch", "rl-finetune": "PPO from the instruction-only policy"}
     for ax, (domain, rows) in zip(axes[0], fig_rows.items()):
         for name, (xs, med, q25, q75, kind) in rows.items():
+            name = readable.get(name, name.removeprefix(f"{domain}-").replace("gpl", "GPL").replace("gpr", "GPR"))
             if kind in RL_METHODS:
                 ax.plot(xs, med, label=name, color=colour[kind])
                 ax.fill_between(xs, q25, q75, alpha=0.2, color=colour[kind])
@@ -151,7 +153,7 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
         ax.set_ylabel("completion (median over tasks)")
         ax.set_title(domain)
         ax.grid(alpha=0.3)
-        ax.legend(loc="best", fontsize=8)
+        ax.legend(loc="lower right", fontsize=7, title="median over tasks; band, bars: quartiles", title_fontsize=7)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png)
