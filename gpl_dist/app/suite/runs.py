@@ -11,8 +11,10 @@ import subprocess
 import time
 from pathlib import Path
 
+from gpl_dist.app.suite.curves import CURVE_TASKS, CurveSettings, compute_curve
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
 from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
+from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
 from learner.driver import run_training
@@ -126,4 +128,17 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
                                        "commit": commit, "settings": evaluation.settings()}
         _write_record(run.run_dir, record)
+    _valid_curve(run, suite, log)
     return record
+
+
+def _valid_curve(run: SuiteRun, suite: Suite, log) -> None:
+    """The run's valid learning curve (``gpl_dist.app.suite.curves``), while its per-round weights are
+    there: a domain without a valid split has none; an entry whose first evaluation caps its tasks
+    (a quick suite) caps the curve's too."""
+    cfg = run.config(suite)
+    if "valid" not in get_domain(cfg.env.domain).split_names:
+        return
+    cap = suite.evaluations[run.entry.evaluations[0]].config.max_tasks
+    settings = CurveSettings(tasks=min(CURVE_TASKS, cap) if cap else CURVE_TASKS)
+    compute_curve(run.run_dir, settings, log=lambda line: log(f"[{run.entry.name} seed {run.seed}] {line}"))
