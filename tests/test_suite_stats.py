@@ -41,7 +41,7 @@ def test_mean_ci_and_welch_agree_with_their_formulas():
     assert mean_ci([0.4]).half_width is None and mean_ci([0.4]).relation(0.1) == "unknown"
 
 
-def _run(tmp_path, name, dead_rounds=()):
+def _run(tmp_path, name, dead_rounds=(), encoder="instruction", kind=None):
     """A run dir whose metrics.jsonl holds 3 rounds (real RoundMetrics rows); the instruction
     encoder's layer dead whole in ``dead_rounds``."""
     d = tmp_path / name
@@ -49,13 +49,15 @@ def _run(tmp_path, name, dead_rounds=()):
     rows = []
     for r in range(3):
         dead = r in dead_rounds
-        health = (EncoderHealth("instruction", 16, 16 if dead else 3, 0, 0, 1 if dead else 0),
-                  EncoderHealth("correction", 16, 2, 0, 0, 0))
+        health = tuple(EncoderHealth(e, 16, 16 if dead and e == encoder else 3, 0, 0, 1 if dead and e == encoder else 0)
+                       for e in ("instruction", "correction"))
         rows.append(RoundMetrics(round_index=r, collected_tuples=100 * (r + 1), failed_tasks=(), collection_seconds=1.0,
                                  load_seconds=0.1, completion_by_corrections=(0.1 * r, 0.2 * r), buffer_tuples=100,
                                  loss=1.0, accuracy=0.5, train_seconds=60.0, train_steps=10,
                                  correction_spread=1.0, encoder_health=health).to_dict())
     (d / "metrics.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
+    if kind:
+        (d / "config.yaml").write_text(f"env:\n  correction_kind: {kind}\n")
     return d
 
 
@@ -65,6 +67,11 @@ def test_a_run_dead_at_its_final_round_is_left_out_of_every_mean(tmp_path):
     assert h[ok].valid and not h[ok].dead_layers and h[ok].instrumented
     assert h[early].valid and h[early].dead_layers == ((0, "instruction"),) and "rounds 0" in h[early].text()
     assert not h[dead].valid and h[dead].dead_at_end == ("instruction",) and "NOT VALID" in h[dead].text()
+    # the retry control's correction is one fixed sentence: its encoder is constant by design
+    rh = run_health(_run(tmp_path, "retry", (1, 2), "correction", "retry"))
+    assert rh.valid and "not counted" in rh.text() and rh.constant_inputs == ("correction",)
+    assert not run_health(_run(tmp_path, "retry-blind", (2,), "instruction", "retry")).valid
+    assert not run_health(_run(tmp_path, "gpl-blind", (2,), "correction", "default")).valid
     budget = run_budget(ok)
     assert (budget.rounds, budget.tuples, budget.gradient_steps, budget.train_seconds) == (3, 600, 30, 180.0)
     assert budget.parameters is None  # no checkpoint in this dir

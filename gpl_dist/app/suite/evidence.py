@@ -37,17 +37,21 @@ class RunHealth:
         instrumented: every round recorded its encoders' health.
         final: the last round's health, one per encoder.
         dead_layers: ``(round, encoder)`` for every round and encoder with a layer dead whole.
+        constant_inputs: encoders whose input is the same for every attempt by design (the retry
+            control's correction: one fixed sentence), so their encoding is constant whatever
+            training does: not counted against the run.
     """
 
     rounds: int
     instrumented: bool
     final: tuple[EncoderHealth, ...]
     dead_layers: tuple[tuple[int, str], ...]
+    constant_inputs: tuple[str, ...] = ()
 
     @property
     def dead_at_end(self) -> tuple[str, ...]:
-        """Encoders with a layer dead whole at the final round."""
-        return tuple(h.encoder for h in self.final if h.constant)
+        """Encoders with a layer dead whole at the final round (those of ``constant_inputs`` aside)."""
+        return tuple(h.encoder for h in self.final if h.constant and h.encoder not in self.constant_inputs)
 
     @property
     def valid(self) -> bool:
@@ -64,7 +68,9 @@ class RunHealth:
         rounds: dict[str, list[int]] = {}
         for r, enc in self.dead_layers:
             rounds.setdefault(enc, []).append(r)
-        died = "; ".join(f"{enc} dead whole in rounds {', '.join(map(str, rs))}" for enc, rs in rounds.items())
+        died = "; ".join(f"{enc} dead whole in rounds {', '.join(map(str, rs))}"
+                         + (" (its input is one fixed sentence: not counted)" if enc in self.constant_inputs else "")
+                         for enc, rs in rounds.items())
         return f"{units}; {died}" + ("; NOT VALID (dead at the final round)" if not self.valid else "")
 
 
@@ -128,12 +134,26 @@ def read_metrics(run_dir: Path) -> list[RoundMetrics]:
     return [rows[r] for r in sorted(rows)]
 
 
+#: Correction kinds whose text is the same after every attempt (``gpl_dist.corrections``).
+CONSTANT_CORRECTION_KINDS = ("retry",)
+
+
 def run_health(run_dir: Path) -> RunHealth:
-    """``RunHealth`` of one run dir."""
+    """``RunHealth`` of one run dir (its ``config.yaml`` says whether the correction is constant)."""
     rounds = read_metrics(run_dir)
     dead = tuple((m.round_index, h.encoder) for m in rounds for h in m.encoder_health if h.constant)
+    constant: tuple[str, ...] = ()
+    if (run_dir / "config.yaml").is_file():
+        import yaml
+
+        try:
+            env = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("env") or {}
+        except yaml.YAMLError as err:
+            raise RunDirError(f"{run_dir / 'config.yaml'} is not YAML ({err})") from None
+        if env.get("correction_kind") in CONSTANT_CORRECTION_KINDS:
+            constant = ("correction",)
     return RunHealth(len(rounds), bool(rounds) and all(m.encoder_health for m in rounds),
-                     rounds[-1].encoder_health if rounds else (), dead)
+                     rounds[-1].encoder_health if rounds else (), dead, constant)
 
 
 def run_budget(run_dir: Path) -> RunBudget:
