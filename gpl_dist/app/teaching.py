@@ -178,12 +178,14 @@ class Teacher:
     """
 
     def __init__(self, run_dir: str | Path, checkpoint: str | None = None,
-                 max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False):
+                 max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False, allow_foreign: bool = False):
 
         self.run_dir = str(Path(run_dir).resolve())
         #: the checkpoint file taught (absolute), as the log records it
         self.checkpoint = str(Path(checkpoint).resolve() if checkpoint else Path(self.run_dir) / "checkpoints" / LATEST)
-        self.cfg, self.model, self.round_index = load_trained_policy(run_dir, checkpoint)
+        #: a checkpoint of another run, domain or model, taught as asked (``--foreign-checkpoint``)
+        self.foreign = allow_foreign
+        self.cfg, self.model, self.round_index = load_trained_policy(run_dir, checkpoint, allow_foreign=allow_foreign)
         variant = self.cfg.model.variant
         if variant not in TEACHABLE_VARIANTS:
             raise TeachingError(f"the policy of {run_dir} (model.variant {variant}) does not read corrections in words: "
