@@ -317,3 +317,12 @@ def test_serve_refuses_a_bad_port_split_or_taken_port_in_one_line(run, capsys):
             assert err.startswith("gpl-dist: error:") and needle in err and "\n" not in err, err
     finally:
         taken.close()
+
+
+def test_teach_with_stdin_closed_ends_after_the_first_attempt(run, tmp_path):
+    """``gpl-dist teach ... 0<&-`` (before: AttributeError on sys.stdin.isatty after the first attempt)."""
+    done = subprocess.run(["bash", "-c", f"'{GPL_DIST}' teach --run-dir '{run}' --task {TASK} --out '{tmp_path}' 0<&-"],
+                          env=quiet_env(), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr and "standard input is closed" in done.stdout
+    assert list((tmp_path / "log").glob("*.parquet"))
