@@ -138,9 +138,15 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
     states, lines = {}, []
+    refused = 0
     for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
-        states[run.run_dir] = state = "running" if holder else run_state(run, suite)
+        try:
+            states[run.run_dir] = state = "running" if holder else run_state(run, suite)
+        except EvidenceError as err:  # not counted: named in its line, and the status exits 2
+            states[run.run_dir], state, refused = "refused", "refused", refused + 1
+            lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
+            continue
         held = f"; {holder.describe()}" if holder else ""
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
@@ -179,6 +185,10 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
           + (f" under {args.costs_from}" if args.costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
+    if refused:
+        print(f"gpl-dist: error: {refused} run(s) refused: their evidence fails its checksums or its own consistency "
+              "(named above); restore them again from the archive, or remove them to train them anew", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -527,7 +537,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from gpl_dist.errors import UserError
+    from gpl_dist.signals import SIGTERM_STATUS, Terminated, end_on_sigterm
 
+    end_on_sigterm()
     try:
         return args.func(args)
     except (UserError, OSError) as err:  # OSError: the user's paths, permissions, names too long
