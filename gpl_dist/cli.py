@@ -131,6 +131,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     its driver), read from its files, and the predicted wall time of what is left
     (``gpl_dist.app.suite.cost``)."""
     from gpl_dist.app.suite.cost import hours, predict
+    from gpl_dist.app.suite.evidence import EvidenceError
     from gpl_dist.app.suite.runs import run_state
     from gpl_dist.app.suite.spec import load_suite, plan
     from storage.lease import lease_holder
@@ -537,7 +538,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from gpl_dist.errors import UserError
-    from gpl_dist.signals import SIGTERM_STATUS, Terminated, end_on_sigterm
+    from gpl_dist.signals import SIGTERM_STATUS, end_on_sigterm, received_sigterm
 
     end_on_sigterm()
     try:
@@ -550,9 +551,20 @@ def main(argv: list[str] | None = None) -> int:
             message = message[:MAX_MESSAGE_CHARS] + " [...]"
         print(f"gpl-dist: error: {message}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("gpl-dist: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (gpl_dist.signals)
+        terminated = received_sigterm()
+        print(f"gpl-dist: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_resume_hint(args)}", file=sys.stderr)
+        return SIGTERM_STATUS if terminated else 130
+
+
+def _resume_hint(args: argparse.Namespace) -> str:
+    """How to go on after a stopped ``train`` or ``suite run`` ("" for other commands)."""
+    if args.command == "train":
+        return f"; resume with: gpl-dist train --run-dir {args.run_dir} --resume"
+    if args.command == "suite" and args.suite_command == "run":
+        chosen = "".join(f" --{k} {v}" for k, v in (("only", args.only), ("seeds", args.seeds)) if v)
+        return f"; resume with: gpl-dist suite run {args.suite} --out {args.out}{chosen}"
+    return ""
 
 
 if __name__ == "__main__":
