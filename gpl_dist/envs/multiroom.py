@@ -491,23 +491,9 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
     """
     rng = np.random.default_rng(seed)
     perm = rng.permutation(NUM_TASKS)
-    held = set(HELDOUT_OBJECTS)
-    clean, heldout_test = [], []
-    for t in range(NUM_TASKS):
-        objs = get_task(t).objects
-        if (objs[0].colour, objs[0].shape) in held:
-            heldout_test.append(t)
-        elif not any((o.colour, o.shape) in held for o in objs):
-            clean.append(t)
+    clean, heldout_test = _held_out(HELDOUT_OBJECTS)
     heldout_train = np.asarray(clean)[rng.permutation(len(clean))[:1700]]
-    held4 = set(HELDOUT4_OBJECTS)
-    clean4, heldout4_test = [], []
-    for t in range(NUM_TASKS):
-        objs = get_task(t).objects
-        if (objs[0].colour, objs[0].shape) in held4:
-            heldout4_test.append(t)
-        elif not any((o.colour, o.shape) in held4 for o in objs):
-            clean4.append(t)
+    clean4, heldout4_test = _held_out(HELDOUT4_OBJECTS)
     order4 = np.asarray(clean4)[np.random.default_rng([seed, 4]).permutation(len(clean4))]
     return {
         "train": sorted(int(t) for t in perm[:1700]),
@@ -519,6 +505,19 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
         "heldout4_indist_test": sorted(int(t) for t in order4[:HELDOUT4_INDIST_TASKS]),
         "heldout4_test": sorted(heldout4_test),
     }
+
+
+def _held_out(objects: tuple[tuple[str, str], ...]) -> tuple[list[int], list[int]]:
+    """``(tasks with none of objects, tasks whose true object is one of them)``."""
+    held = set(objects)
+    clean, test = [], []
+    for t in range(NUM_TASKS):
+        objs = get_task(t).objects
+        if (objs[0].colour, objs[0].shape) in held:
+            test.append(t)
+        elif not any((o.colour, o.shape) in held for o in objs):
+            clean.append(t)
+    return clean, test
 
 
 def decoy_overlap(task_ids) -> tuple[float, float]:
