@@ -563,7 +563,7 @@ def plot_curves(results: list[RunResult], domain: str, path: Path) -> bool:
                 continue
             n = min(len(v) for _, v in series)
             ys = [statistics.fmean(v[j][-1] for _, v in series) for j in range(n)]
-            ax.plot(series[0][0][:n], ys, "o-", ms=3, color=f"C{i % 10}", ls="-" if i < 10 else "--",
+            ax.plot(series[0][0][:n], ys, marker="o", ms=3, color=f"C{i % 10}", ls="-" if i < 10 else "--",
                     label=f"{entry} ({len(series)})")
     axes[0].set_title("training tasks, during collection (last attempt)", fontsize=8)
     axes[1].set_title("valid split, each round's weights (last attempt)", fontsize=8)
