@@ -42,9 +42,8 @@ from torch import nn
 
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import ConfigError, TrainingConfig
-from gpl_dist.models.gpl import GPLPolicy
 from gpl_dist.models.layers import Conditioning
-from gpl_dist.models.mivoa import MIVOAPolicy, PreviousStep
+from gpl_dist.models.mivoa import PreviousStep
 from gpl_dist.records import LearnerState
 from learner.batches import TensorView
 from learner.health import PROBE_STATES, EncoderHealth, encoder_health
@@ -303,7 +302,7 @@ class Learner:
     def encoder_health(self, tv: TensorView) -> tuple[EncoderHealth, ...]:
         """See ``RoundStats.encoder_health``: states spread evenly over the view (no random draw, so
         the training's random stream is untouched)."""
-        if tv.num_states == 0 or not isinstance(self.model, (GPLPolicy, MIVOAPolicy)):
+        if tv.num_states == 0:
             return ()
         idx = torch.linspace(0, tv.num_states - 1, min(tv.num_states, PROBE_STATES)).long().unique()
         return encoder_health(self.model, tv.batch(idx.to(tv.observations.device))[2].to(self.device))

@@ -9,6 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import gpl_dist  # noqa: F401  (registers the envs)
+from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.domains import domain_names, get_domain, load_domain_module
 from gpl_dist.envs import ENV_IDS as BUILTIN_ENV_IDS
 from gpl_dist.language import split_words
@@ -162,12 +163,12 @@ def test_paraphrases_cover_every_sentence_and_hold_out_no_word(env_id):
     assert heldout_only
 
 
-@pytest.mark.parametrize("env_id", [e for e in ENV_IDS if "retry" in SPECS[e].correction_kinds])
-def test_the_retry_control_says_one_sentence_whatever_the_attempt_did(env_id):
+@pytest.mark.parametrize("env_id,kind", [(e, k) for e in ENV_IDS for k in CONSTANT_KINDS if k in SPECS[e].correction_kinds])
+def test_the_retry_control_says_one_sentence_whatever_the_attempt_did(env_id, kind):
     """The retry control's oracle carries no information: one sentence after every attempt (solved
     or not, any task, any draw), made of the domain's words, so no model's shapes change."""
     spec = SPECS[env_id]
-    oracle = spec.make_corrector("retry")
+    oracle = spec.make_corrector(kind)
     said = set()
     for task_id in range(0, spec.num_tasks, max(1, spec.num_tasks // 12)):
         env = _random_attempt_env(spec, task_id, task_id)

@@ -11,6 +11,10 @@ from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.roles import CorrectionOracle
 
+#: Kinds whose text is the same after every attempt, whatever it did (the retry control): an
+#: encoder of such a correction is constant by design, which the report's health gate allows.
+CONSTANT_KINDS = ("retry",)
+
 
 def make_corrector(domain: str, kind: str = "default") -> CorrectionOracle:
     """Correction oracle of ``domain``; ``kind`` picks the variant (``default`` = the paper's)."""

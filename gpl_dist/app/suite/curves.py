@@ -110,7 +110,7 @@ def compute_curves(suite_out: str | Path, entries: set[str] | None = None, seeds
     written = []
     for record in sorted(root.glob("*/seed*/suite-run.json")):
         run_dir = record.parent
-        if entries and run_dir.parent.name not in entries:
+        if entries is not None and run_dir.parent.name not in entries:
             continue
         if seeds is not None and int(run_dir.name.removeprefix("seed")) not in seeds:
             continue

@@ -17,6 +17,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import LATEST, load_checkpoint
 from learner.driver import RoundMetrics
@@ -134,10 +135,6 @@ def read_metrics(run_dir: Path) -> list[RoundMetrics]:
     return [rows[r] for r in sorted(rows)]
 
 
-#: Correction kinds whose text is the same after every attempt (``gpl_dist.corrections``).
-CONSTANT_CORRECTION_KINDS = ("retry",)
-
-
 def run_health(run_dir: Path) -> RunHealth:
     """``RunHealth`` of one run dir (its ``config.yaml`` says whether the correction is constant)."""
     rounds = read_metrics(run_dir)
@@ -150,7 +147,7 @@ def run_health(run_dir: Path) -> RunHealth:
             env = (yaml.safe_load((run_dir / "config.yaml").read_text()) or {}).get("env") or {}
         except yaml.YAMLError as err:
             raise RunDirError(f"{run_dir / 'config.yaml'} is not YAML ({err})") from None
-        if env.get("correction_kind") in CONSTANT_CORRECTION_KINDS:
+        if env.get("correction_kind") in CONSTANT_KINDS:
             constant = ("correction",)
     return RunHealth(len(rounds), bool(rounds) and all(m.encoder_health for m in rounds),
                      rounds[-1].encoder_health if rounds else (), dead, constant)
