@@ -333,7 +333,7 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
 def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive_and_report(tmp_path):
     from gpl_dist.app.suite.archive import archive_runs
     from gpl_dist.app.suite.curves import CurveSettings, compute_curve, compute_curves, curve_tasks
-    from gpl_dist.app.suite.evidence import CURVE_FILE, learning_curve
+    from gpl_dist.app.suite.rundata import CURVE_FILE, learning_curve
     from gpl_dist.splits import split_tasks
     from learner.evaluate import evaluate_policy, load_trained_policy
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gpl_dist.app.suite.evidence import CURVE_FILE
+from gpl_dist.app.suite.rundata import CURVE_FILE
 from gpl_dist.errors import RunDirError
 from gpl_dist.splits import split_tasks
 from learner.evaluate import evaluate_policy, load_trained_policy

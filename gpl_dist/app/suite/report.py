@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.app.suite.archive import archive_runs
-from gpl_dist.app.suite.evidence import RunBudget, RunHealth, learning_curve, run_budget, run_health
+from gpl_dist.app.suite.rundata import RunBudget, RunHealth, learning_curve, run_budget, run_health
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.runs import RECORD_VERSION
