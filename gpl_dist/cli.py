@@ -101,7 +101,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     seeds = _parse_seeds(args.seeds)
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
                                 max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy,
-                                phrasings=args.phrasings)
+                                phrasings=args.phrasings, foreign_checkpoint=args.foreign_checkpoint, out_dir=args.out)
     import json
     report = json.loads(path.read_text())
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
@@ -135,6 +135,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     its driver), read from its files, and the predicted wall time of what is left
     (``gpl_dist.app.suite.cost``)."""
     from gpl_dist.app.suite.cost import hours, predict
+    from gpl_dist.app.suite.evidence import EvidenceError
     from gpl_dist.app.suite.runs import run_state
     from gpl_dist.app.suite.spec import load_suite, plan
     from storage.lease import lease_holder
@@ -142,9 +143,15 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
     states, lines = {}, []
+    refused = 0
     for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
-        states[run.run_dir] = state = "running" if holder else run_state(run, suite)
+        try:
+            states[run.run_dir] = state = "running" if holder else run_state(run, suite)
+        except EvidenceError as err:  # not counted: named in its line, and the status exits 2
+            states[run.run_dir], state, refused = "refused", "refused", refused + 1
+            lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
+            continue
         held = f"; {holder.describe()}" if holder else ""
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
@@ -183,6 +190,10 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
           + (f" under {args.costs_from}" if args.costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
+    if refused:
+        print(f"gpl-dist: error: {refused} run(s) refused: their evidence fails its checksums or its own consistency "
+              "(named above); restore them again from the archive, or remove them to train them anew", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -240,7 +251,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.run_dir:
         if args.env or args.actions or args.expert:
             raise UsageError("--run-dir draws the run's policy on its own domain: leave out --env, --actions and --expert")
-        frames = policy_attempt_frames(args.run_dir, args.task, args.attempts, seed=args.seed, checkpoint=args.checkpoint)
+        frames = policy_attempt_frames(args.run_dir, args.task, args.attempts, seed=args.seed, checkpoint=args.checkpoint,
+                                       foreign_checkpoint=args.foreign_checkpoint)
         out = write_picture(frames, args.out)
         print(f"wrote {out} ({len(frames)} frames)")
         return 0
@@ -256,7 +268,12 @@ def cmd_render(args: argparse.Namespace) -> int:
 def _teacher(args: argparse.Namespace):
     from gpl_dist.app.teaching import Teacher
 
-    return Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy)
+    if args.foreign_checkpoint and not args.out:
+        raise UsageError(f"--foreign-checkpoint writes nothing into {args.run_dir}: give --out DIR for the teaching log")
+    if args.foreign_checkpoint and Path(args.out).resolve().is_relative_to(Path(args.run_dir).resolve()):
+        raise UsageError(f"--out {args.out} is inside {args.run_dir}: a foreign checkpoint's teaching log goes elsewhere")
+    return Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy,
+                   allow_foreign=args.foreign_checkpoint)
 
 
 def cmd_teach(args: argparse.Namespace) -> int:
@@ -338,34 +355,69 @@ def _print_report(report) -> None:
         print(f"round {r}: a commit in progress (a driver stopped mid-commit); train --resume or clean finishes it")
 
 
+def _run_checks(path: str, root: str) -> tuple[str | None, list[str]]:
+    """For a run dir (not a bare buffer): its identity, and a ``path: what`` line for each of its
+    checkpoints that is unreadable or of another run (``learner.identity``)."""
+    if not (Path(path) / "config.yaml").is_file():
+        return None, []
+    from learner.identity import checkpoint_problems, resolve_identity
+
+    identity = resolve_identity(path, root)
+    if identity.legacy:
+        print(f"note: {path} has no run.json (made before run identities): checked as run {identity.run_id[:64]}")
+    return identity.run_id, [f"{p}: {what}" for p, what in checkpoint_problems(path, identity.run_id)]
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
-    """``gpl-dist verify``: check every committed file; ``--quarantine`` sets bad rounds aside."""
+    """``gpl-dist verify``: check every committed file and checkpoint; ``--quarantine`` sets bad rounds aside."""
     from storage.lease import Lease
     from storage.verify import quarantine_round, verify_buffer
 
     root = _buffer_root(args.run_dir)
+    run_id, bad_checkpoints = _run_checks(args.run_dir, root)
+    for line in bad_checkpoints:
+        print(f"BAD  {line}")
+    if bad_checkpoints:
+        print(f"gpl-dist: error: {len(bad_checkpoints)} checkpoint(s) of {args.run_dir} are unreadable or of another "
+              "run (set them aside by hand: verify never moves checkpoints)", file=sys.stderr)
     if not args.quarantine:
-        report = verify_buffer(root)
+        report = verify_buffer(root, run_id=run_id)
         _print_report(report)
     else:
         with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
-            report = verify_buffer(root)
+            report = verify_buffer(root, run_id=run_id)
             _print_report(report)
             for r in report.bad_rounds:
                 moved = quarantine_round(root, r)
                 what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
                 print(f"quarantined round {r}: {what} under quarantine/")
             if report.bad_rounds:
-                report = verify_buffer(root)
+                report = verify_buffer(root, run_id=run_id)
                 _print_report(report)
-        if report.ok:
+        if report.ok and not bad_checkpoints:
             print(f"resume with: gpl-dist train --run-dir {args.run_dir} --resume "
                   "(rounds after the last checkpoint are collected again)")
     if report.ok:
-        return 0
+        return 2 if bad_checkpoints else 0
     print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
           "(set them aside with --quarantine; see docs/buffer.md, Recovering)", file=sys.stderr)
     return 2
+
+
+def _clean_run_dir(path: str, dry_run: bool) -> list[str]:
+    """Temporary files of dead writers in a run dir and its checkpoints (``learner.checkpoint.dead_temporaries``),
+    removed under the run dir's lease (no driver can be writing them meanwhile); [] for a bare buffer."""
+    if not (Path(path) / "config.yaml").is_file():
+        return []
+    from learner.checkpoint import dead_temporaries
+    from storage.lease import Lease
+
+    with Lease(path, "gpl-dist clean"):
+        found = dead_temporaries(path)
+        if not dry_run:
+            for p in found:
+                p.unlink(missing_ok=True)
+    return [str(p) for p in found]
 
 
 def cmd_clean(args: argparse.Namespace) -> int:
@@ -374,7 +426,7 @@ def cmd_clean(args: argparse.Namespace) -> int:
     from storage.verify import verify_buffer
 
     root = _buffer_root(args.run_dir)
-    removed = clean_leftovers(root, dry_run=args.dry_run)
+    removed = clean_leftovers(root, dry_run=args.dry_run) + _clean_run_dir(args.run_dir, args.dry_run)
     verb = "would remove" if args.dry_run else "removed"
     for path in removed:
         print(f"{verb} {path}")
@@ -389,6 +441,12 @@ def cmd_clean(args: argparse.Namespace) -> int:
 def _add_version(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--version", action="version", version=f"gpl-dist {__version__}",
                         help="print the version and exit")
+
+
+def _add_foreign_checkpoint(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--foreign-checkpoint", action="store_true",
+                   help="use a --checkpoint of another run, domain or model (refused otherwise); nothing is then "
+                        "written into RUN_DIR")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -427,6 +485,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phrasings", choices=PHRASINGS,
                    help="say instructions and corrections as the oracle does (canonical) or as train/heldout paraphrases")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+    _add_foreign_checkpoint(p)
+    p.add_argument("--out", help="folder for the evaluation's files (default RUN_DIR; required with --foreign-checkpoint)")
     acting = p.add_mutually_exclusive_group()
     acting.add_argument("--greedy", dest="greedy", action="store_true", default=None, help="act with the most likely action")
     acting.add_argument("--sample", dest="greedy", action="store_false", help="sample actions from the policy (default)")
@@ -478,6 +538,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-dir", help="draw this run's trained policy: its successive attempts and the corrections between")
     p.add_argument("--attempts", type=int, default=5, help="with --run-dir: attempts to draw (corrections + 1)")
     p.add_argument("--checkpoint", help="with --run-dir: checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+    _add_foreign_checkpoint(p)
     p.add_argument("--task", required=True, type=int, help="task id (multiroom 0..3239, relocation 0..999)")
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
     drawn = p.add_mutually_exclusive_group()
@@ -492,6 +553,7 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=text)
         p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt)")
         p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
+        _add_foreign_checkpoint(p)
         p.add_argument("--split", default="test", help="split of the tasks drawn or matched (default test: held out)")
         p.add_argument("--max-corrections", type=int, default=10, help="corrections an episode may take")
         p.add_argument("--out", help="folder of the teaching log (OUT/log/*.parquet)" + (" and GIFs (OUT/gifs)" if name == "teach"
@@ -539,7 +601,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     from gpl_dist.errors import UserError
+    from gpl_dist.signals import SIGTERM_STATUS, end_on_sigterm, received_sigterm
 
+    end_on_sigterm()
     try:
         return args.func(args)
     except (UserError, OSError) as err:  # OSError: the user's paths, permissions, names too long
@@ -550,9 +614,20 @@ def main(argv: list[str] | None = None) -> int:
             message = message[:MAX_MESSAGE_CHARS] + " [...]"
         print(f"gpl-dist: error: {message}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("gpl-dist: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:  # Ctrl-C, or SIGTERM (gpl_dist.signals)
+        terminated = received_sigterm()
+        print(f"gpl-dist: {'terminated (SIGTERM)' if terminated else 'interrupted'}{_resume_hint(args)}", file=sys.stderr)
+        return SIGTERM_STATUS if terminated else 130
+
+
+def _resume_hint(args: argparse.Namespace) -> str:
+    """How to go on after a stopped ``train`` or ``suite run`` ("" for other commands)."""
+    if args.command == "train":
+        return f"; resume with: gpl-dist train --run-dir {args.run_dir} --resume"
+    if args.command == "suite" and args.suite_command == "run":
+        chosen = "".join(f" --{k} {v}" for k, v in (("only", args.only), ("seeds", args.seeds)) if v)
+        return f"; resume with: gpl-dist suite run {args.suite} --out {args.out}{chosen}"
+    return ""
 
 
 if __name__ == "__main__":

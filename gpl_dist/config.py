@@ -13,6 +13,7 @@ import dataclasses
 import inspect
 import os
 import re
+import reprlib
 import textwrap
 import typing
 from dataclasses import dataclass, field
@@ -215,27 +216,27 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
     if origin is tuple:
         args = typing.get_args(tp)
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list, got {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: expected a list, got {type(value).__name__} {bounded_repr(value)}")
         item_tp = args[0]
         return tuple(_coerce(v, item_tp, f"{where}[{i}]") for i, v in enumerate(value))
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected bool, got {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: expected bool, got {type(value).__name__} {bounded_repr(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             # 1e6 is a float in YAML; accept it when it is integral, as people write buffer sizes so.
             if isinstance(value, float) and value.is_integer():
                 return int(value)
-            raise ConfigError(f"{where}: expected int, got {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: expected int, got {type(value).__name__} {bounded_repr(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected float, got {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: expected float, got {type(value).__name__} {bounded_repr(value)}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected str, got {type(value).__name__} {value!r}")
+            raise ConfigError(f"{where}: expected str, got {type(value).__name__} {bounded_repr(value)}")
         return value
     raise ConfigError(f"{where}: unsupported config type {_type_name(tp)}")
 
@@ -305,9 +306,15 @@ def _set_override(tree: dict, dotted: str, raw: str) -> None:
         node = node.setdefault(key, {})
         if not isinstance(node, dict):
             raise ConfigError(f"override {dotted}: '{key}' is not a section")
+    if len(raw) > MAX_OVERRIDE_CHARS:
+        raise ConfigError(f"override {dotted}: the value is {len(raw)} characters long; at most {MAX_OVERRIDE_CHARS}")
     try:
         node[keys[-1]] = yaml.load(raw, Loader=_UniqueKeyLoader)
-    except (yaml.YAMLError, ValueError):  # ValueError: e.g. an integer of more than 4300 digits
+    except yaml.YAMLError as err:
+        problem = getattr(err, "problem", None)
+        reason = f" ({problem})" if isinstance(problem, str) and problem.startswith(_OWN_PROBLEMS) else ""
+        raise ConfigError(f"override {dotted}={raw[:80]!r}: the value is not valid YAML{reason}") from None
+    except ValueError:  # e.g. an integer of more than 4300 digits
         raise ConfigError(f"override {dotted}={raw[:80]!r}: the value is not valid YAML") from None
 
 
@@ -321,15 +328,9 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
         if not p.is_file():
             raise ConfigError(f"config file not found: {p}")
         try:
-            tree = yaml.load(p.read_text(), Loader=_UniqueKeyLoader) or {}
+            tree = load_yaml_text(p.read_text(), p) or {}
         except UnicodeDecodeError:
             raise ConfigError(f"{p} is not a text file") from None
-        except (yaml.YAMLError, ValueError) as err:
-            mark = getattr(err, "problem_mark", None)
-            line = f" line {mark.line + 1}" if mark is not None else ""
-            problem = getattr(err, "problem", None)
-            reason = f": {problem}" if isinstance(problem, str) else ""
-            raise ConfigError(f"{p}:{line} is not valid YAML{reason}") from None
         if not isinstance(tree, dict):
             raise ConfigError(f"{p}: top level must be a mapping")
     for dotted, raw in (overrides or {}).items():
@@ -426,8 +427,59 @@ def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
     ]
 
 
+#: Deepest nesting of mappings and lists a config, suite file or ``--set`` value may hold.
+MAX_YAML_DEPTH = 32
+#: Longest config or suite file read, in characters (the shipped ones are a few kB).
+MAX_YAML_CHARS = 1 << 20
+#: Longest ``--set`` value, in characters.
+MAX_OVERRIDE_CHARS = 10_000
+_OWN_PROBLEMS = ("YAML aliases", "nested deeper")
+
+
 class _UniqueKeyLoader(yaml.SafeLoader):
-    """YAML's safe loader, refusing a mapping that repeats a key (PyYAML keeps the last one silently)."""
+    """YAML's safe loader, refusing a mapping that repeats a key (PyYAML keeps the last one
+    silently), aliases (``*name``: a few hundred bytes of them expand to gigabytes) and nesting
+    deeper than ``MAX_YAML_DEPTH`` (which would exhaust Python's recursion limit)."""
+
+    _depth = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, "YAML aliases (*name) are not accepted: write the value out",
+                                              mark)
+        if self._depth >= MAX_YAML_DEPTH:
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, f"nested deeper than {MAX_YAML_DEPTH} levels", mark)
+        self._depth += 1
+        try:
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+
+def load_yaml_text(text: str, source: str | os.PathLike) -> Any:
+    """``text`` parsed by the bounded loader (``_UniqueKeyLoader``); ``ConfigError`` in one line,
+    naming ``source`` and the line, for anything it refuses or cannot parse."""
+    if len(text) > MAX_YAML_CHARS:
+        raise ConfigError(f"{source} is {len(text)} characters long; a config or suite file may have {MAX_YAML_CHARS}")
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)
+    except (yaml.YAMLError, ValueError) as err:  # ValueError: e.g. an integer of more than 4300 digits
+        mark = getattr(err, "problem_mark", None)
+        line = f" line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None)
+        reason = f": {problem[:200]}" if isinstance(problem, str) else ""
+        raise ConfigError(f"{source}:{line} is not valid YAML{reason}") from None
+
+
+def bounded_repr(value: Any, limit: int = 80) -> str:
+    """``repr(value)`` cut to about ``limit`` characters, without ever formatting more than a few
+    items of a container (a value can be huge: an error message must not be)."""
+    r = reprlib.Repr()
+    r.maxlevel, r.maxstring, r.maxother, r.maxlong = 3, limit, limit, limit
+    text = r.repr(value)
+    return text if len(text) <= limit else text[:limit] + "..."
 
 
 def _unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:

@@ -5,7 +5,8 @@ Product code calls ``fault_point(name, **context)`` at the few places where a cr
 - ``worker.unit_collected`` (round, unit): a rollout worker has collected a unit and not yet written
   its shard (in the driver with ``--serial``, else in a Ray actor);
 - ``writer.before_publish``: a shard writer has written its try under ``_tmp-`` and not yet renamed it;
-- ``commit.between_moves``: the driver has moved the first file of a round's commit, not the rest.
+- ``commit.between_moves``: the driver has moved the first file of a round's commit, not the rest;
+- ``verify.between_listings``: ``verify_buffer`` has read the manifests and journals, not yet ``data/``.
 
 Nothing happens at a point unless a hook is installed. A test installs one in its own process with
 ``install(hook)``; for the processes it starts (``gpl-dist train``, Ray actors, which inherit the

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,8 @@ class Checkpoint:
         rng_state: torch and numpy global RNG states and the learner's batch generator.
         config: the resolved run config as a plain dict.
         history: per-round metrics so far.
+        run_id: the identity of the run that trained it (``learner.identity``); None in a
+            checkpoint saved before identities existed.
     """
 
     round_index: int
@@ -45,6 +48,7 @@ class Checkpoint:
     rng_state: dict
     config: dict
     history: list
+    run_id: str | None = None
 
 
 def capture_rng(generator_state: torch.Tensor) -> dict:
@@ -76,6 +80,8 @@ def save_checkpoint(directory: str | os.PathLike, ckpt: Checkpoint, keep_round_c
         "model_state": ckpt.model_state, "optimizer_state": ckpt.optimizer_state,
         "rng_state": ckpt.rng_state, "config": ckpt.config, "history": ckpt.history,
     }
+    if ckpt.run_id is not None:
+        payload["run_id"] = ckpt.run_id
     tmp = d / f".{LATEST}.tmp-{os.getpid()}"
     torch.save(payload, tmp)
     with open(tmp, "rb") as fh:
@@ -106,10 +112,19 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     except Exception as err:  # noqa: BLE001 - torch raises many types for a bad file; its text suggests unsafe loading
         raise CheckpointError(f"{p} is not a readable gpl-dist checkpoint ({type(err).__name__})") from None
     fields = {f.name for f in dataclasses.fields(Checkpoint)}
-    if not isinstance(raw, dict) or set(raw) != fields:
-        have = sorted(raw) if isinstance(raw, dict) else type(raw).__name__
+    if not isinstance(raw, dict) or set(raw) not in (fields, fields - {"run_id"}):  # without: saved before run ids
+        have = sorted(map(str, raw))[:20] if isinstance(raw, dict) else type(raw).__name__
         raise CheckpointError(f"{p} is not a gpl-dist checkpoint (holds {have})")
+    if not isinstance(raw.get("run_id", ""), str):
+        raise CheckpointError(f"{p} is not a gpl-dist checkpoint (its run_id is not a string)")
     return Checkpoint(**raw)
+
+
+def check_checkpoint_run(ckpt: Checkpoint, path: str | os.PathLike, run_id: str, run_dir: str | os.PathLike) -> None:
+    """``CheckpointError`` naming both runs when ``ckpt`` was trained by another run than ``run_id``
+    (a checkpoint without a run id, saved before run ids existed, is taken as the run's own)."""
+    if ckpt.run_id is not None and ckpt.run_id != run_id:
+        raise CheckpointError(f"{path} is a checkpoint of run {ckpt.run_id[:64]}, not of {run_dir} (run {run_id[:64]})")
 
 
 def rounds_trained(run_dir: str | os.PathLike) -> int:
@@ -140,3 +155,31 @@ def load_model_state(model: torch.nn.Module, ckpt: Checkpoint, source: str | os.
     except (RuntimeError, KeyError, TypeError) as err:
         first = str(err).strip().splitlines()[0][:200]
         raise CheckpointError(f"{source} does not fit this run's model (another variant or size?): {first}") from None
+
+
+#: A temporary file a gpl-dist process writes beside its final name: ``.<name>.tmp-<pid>[-<thread>][.png]``.
+_TEMPORARY = re.compile(r"^\.[^/]+\.tmp-(\d+)(?:-\d+)?(?:\.png)?$")
+
+
+def dead_temporaries(run_dir: str | os.PathLike) -> list[Path]:
+    """Temporary files in ``run_dir`` and its ``checkpoints/`` whose writer (the pid in the name)
+    no longer runs on this host: what a process killed mid-write (a full disk, a signal) left."""
+    out = []
+    for folder in (Path(run_dir), Path(run_dir) / "checkpoints"):
+        for path in sorted(folder.glob(".*.tmp-*")) if folder.is_dir() else []:
+            m = _TEMPORARY.match(path.name)
+            if m and path.is_file() and not _running(int(m.group(1))):
+                out.append(path)
+    return out
+
+
+def _running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):
+        return True  # another user's process (or an absurd number): leave its files alone
+    return True

@@ -2,6 +2,7 @@
 
 Run directory layout::
 
+    RUN_DIR/run.json             the run's identity (``learner.identity``), written when it is created
     RUN_DIR/config.yaml          resolved config of the run
     RUN_DIR/buffer/              sharded buffer (unless buffer.location points elsewhere)
     RUN_DIR/checkpoints/         latest.pt and round-NNNNNN.pt (atomic)
@@ -17,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import os
 import time
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
@@ -34,14 +36,24 @@ from gpl_dist.models.build import build_model_from_config
 from gpl_dist.records import WorkUnit
 from gpl_dist.seeding import derive_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import LATEST, Checkpoint, capture_rng, load_checkpoint, load_learner_state, restore_rng, save_checkpoint
+from learner.checkpoint import (
+    LATEST,
+    Checkpoint,
+    capture_rng,
+    check_checkpoint_run,
+    load_checkpoint,
+    load_learner_state,
+    restore_rng,
+    save_checkpoint,
+)
 from learner.health import EncoderHealth, format_health
+from learner.identity import RunIdentity, create_identity, read_identity, resolve_identity
 from learner.parallel import make_learner
 from learner.trainer import resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
 from storage.fs import resolve
 from storage.lease import Lease
-from storage.manifest import mark_buffer
+from storage.manifest import buffer_run_id, mark_buffer
 from storage.verify import verify_buffer
 from workers.pool import SerialCollector, UnitResult
 from workers.rollout import RolloutSettings
@@ -205,11 +217,19 @@ def check_fresh(run_dir: Path, root: str) -> None:
                           "or choose another --run-dir")
 
 
-def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path) -> None:
-    """Finish a half-done commit, then check every committed file before any new work."""
-    recover_pending(root)
-    report = verify_buffer(root)
+def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path, identity: RunIdentity | None = None) -> None:
+    """Finish a half-done commit, then check every committed file before any new work: each must
+    belong to this run (``identity``, default the one its files record), as the checkpoint must."""
     hint = f"no new work was started; see `gpl-dist verify {run_dir}` and docs/buffer.md (Recovering)"
+    identity = identity or resolve_identity(run_dir, root)
+    if ckpt is not None:
+        check_checkpoint_run(ckpt, run_dir / "checkpoints" / LATEST, identity.run_id, run_dir)
+    marked = buffer_run_id(root)
+    if marked is not None and marked != identity.run_id:
+        raise BufferIntegrityError(f"the buffer {root} belongs to run {marked[:64]}, not to {run_dir} (run "
+                                   f"{identity.run_id[:64]}); {hint}")
+    recover_pending(root)
+    report = verify_buffer(root, run_id=identity.run_id)
     report.raise_if_bad(hint)
     if ckpt is not None:
         have = set(report.rounds) | set(report.quarantined)
@@ -262,15 +282,21 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
             held.enter_context(Lease(root, "gpl-dist train"))
         if not resume:
             check_fresh(run_dir, root)  # again, now that no other driver can start one meanwhile
+            # a run.json alone is a driver stopped right after creating the run: it is still this run
+            identity = read_identity(run_dir) or create_identity(run_dir)
+        else:
+            identity = resolve_identity(run_dir, root)
         ckpt = load_checkpoint(ckpt_path) if resume and ckpt_path.exists() else None
         if resume:
             check_resumable(cfg, run_dir, ckpt)
             if ckpt is not None and ckpt.round_index + 1 >= cfg.training.num_rounds:
+                check_checkpoint_run(ckpt, ckpt_path, identity.run_id, run_dir)
+                rebuild_metrics(run_dir, ckpt)
                 print(f"{run_dir} has finished {ckpt.round_index + 1} rounds (training.num_rounds is "
                       f"{cfg.training.num_rounds}): nothing to do", flush=True)
                 return TrainingResult(run_dir, tuple(RoundMetrics.from_dict(m) for m in ckpt.history))
-            verify_for_resume(root, ckpt, run_dir)
-        return _train(cfg, run_dir, root, tasks, ckpt, serial=serial, address=address, progress=progress,
+            verify_for_resume(root, ckpt, run_dir, identity)
+        return _train(cfg, run_dir, root, tasks, ckpt, identity, serial=serial, address=address, progress=progress,
                       collector=collector)
 
 
@@ -279,8 +305,24 @@ def _same_location(a: str | Path, b: str | Path) -> bool:
     return type(la.fs) is type(lb.fs) and la.root.rstrip("/") == lb.root.rstrip("/")
 
 
-def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None, *,
-           serial: bool, address: str | None, progress: bool, collector) -> TrainingResult:
+def rebuild_metrics(run_dir: Path, ckpt: Checkpoint) -> None:
+    """Rewrite ``metrics.jsonl`` from the rounds ``ckpt`` records (atomically, only when it differs):
+    a driver stopped between saving a checkpoint and appending its round's line, or a line
+    appended for a round no checkpoint kept, leaves the file as the checkpoints say."""
+    path = run_dir / "metrics.jsonl"
+    text = "".join(json.dumps(m) + "\n" for m in ckpt.history)
+    try:
+        if path.read_text() == text:
+            return
+    except (FileNotFoundError, UnicodeDecodeError):
+        pass
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None,
+           identity: RunIdentity, *, serial: bool, address: str | None, progress: bool, collector) -> TrainingResult:
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
     model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=cfg.seed)
@@ -288,7 +330,7 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
     learner = None
     try:
         if owns_collector:  # before anything is written: joining a cluster can fail
-            collector = _make_collector(cfg, RolloutSettings.of_run(cfg), root, run_dir.name, serial=serial,
+            collector = _make_collector(cfg, RolloutSettings.of_run(cfg), root, identity.run_id, serial=serial,
                                         address=address)
         learner = _make_learner(cfg, model, on_ray=not serial)
         start_round, history = 0, []
@@ -296,9 +338,10 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
             load_learner_state(learner, ckpt, run_dir / "checkpoints" / LATEST)
             restore_rng(ckpt.rng_state)
             start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
+            rebuild_metrics(run_dir, ckpt)
             log.info("resuming %s at round %d", run_dir, start_round)
         return _train_rounds(cfg, run_dir, root, tasks, learner, model.uses_corrections, collector, start_round, history,
-                             progress)
+                             progress, identity.run_id)
     finally:
         if learner is not None:
             learner.close()
@@ -326,13 +369,13 @@ def _make_learner(cfg: RunConfig, model, on_ray: bool):
 
 def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], learner, uses_corrections: bool,
                   collector,
-                  start_round: int, history: list[RoundMetrics], progress: bool) -> TrainingResult:
+                  start_round: int, history: list[RoundMetrics], progress: bool, run_id: str) -> TrainingResult:
     domain = get_domain(cfg.env.domain)
     ckpt_dir = run_dir / "checkpoints"
     tb = None
     try:
         save_config(cfg, run_dir / "config.yaml")
-        mark_buffer(root, run_dir.name)
+        mark_buffer(root, run_id, replace=not committed_rounds(root))
         round_loop = _RoundLoop(cfg, domain, tasks, learner, uses_corrections, collector, root,
                                 _Progress(progress))
         tb = _tensorboard(run_dir)
@@ -343,7 +386,7 @@ def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ..
             save_checkpoint(ckpt_dir, Checkpoint(
                 round_index=r, policy_version=r + 1, model_state=dict(state.model),
                 optimizer_state=dict(state.optimizer or {}), rng_state=capture_rng(state.generator),
-                config=config_to_dict(cfg), history=[m.to_dict() for m in history]))
+                config=config_to_dict(cfg), history=[m.to_dict() for m in history], run_id=run_id))
             if r == start_round:
                 print(ROUND_LINE_LEGEND)
             _log_round(run_dir, tb, metrics)

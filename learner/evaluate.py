@@ -17,23 +17,25 @@ import copy
 import dataclasses
 import json
 import os
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from gpl_dist.config import MAX_CORRECTIONS, RunConfig, config_from_dict
+from gpl_dist.config import MAX_CORRECTIONS, ConfigError, RunConfig, config_from_dict, load_config
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
-from gpl_dist.errors import UsageError
+from gpl_dist.errors import CheckpointError, UsageError
 from gpl_dist.language import PHRASINGS
 from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import PolicyNetwork, build_model_from_config
 from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
 from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks
-from learner.checkpoint import LATEST, load_checkpoint, load_model_state
+from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
+from learner.identity import read_identity, resolve_identity
 from workers.loop import Rollout
 
 
@@ -103,15 +105,50 @@ class EvalResult:
     effort: CorrectionEffort
 
 
-def load_trained_policy(run_dir: str | Path, checkpoint: str | None = None) -> tuple[RunConfig, PolicyNetwork, int]:
+def why_foreign(run_dir: str | Path, ckpt: Checkpoint, ckpt_file: str | Path) -> str | None:
+    """Why ``ckpt`` (read from ``ckpt_file``) is not a checkpoint of the run in ``run_dir``, in
+    words; None when it is one: the same run identity (when both record one), and the same domain,
+    model and seed as the run's ``config.yaml``."""
+    run_dir = Path(run_dir)
+    identity = read_identity(run_dir)
+    if identity is not None and ckpt.run_id is not None and ckpt.run_id != identity.run_id:
+        return f"{ckpt_file} is a checkpoint of run {ckpt.run_id[:64]}, not of {run_dir} (run {identity.run_id[:64]})"
+    saved = run_dir / "config.yaml"
+    if not saved.is_file():
+        return f"{run_dir} holds no run (no config.yaml) to evaluate {ckpt_file} as"
+    try:
+        own = load_config(saved)
+        theirs = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
+    except ConfigError as err:
+        return f"cannot compare {ckpt_file} with {run_dir}: {err}"
+    differ = [f"env.domain {theirs.env.domain} (the run: {own.env.domain})"] if theirs.env.domain != own.env.domain else []
+    differ += [f"model.{f.name} {getattr(theirs.model, f.name)} (the run: {getattr(own.model, f.name)})"
+               for f in dataclasses.fields(own.model) if getattr(theirs.model, f.name) != getattr(own.model, f.name)]
+    differ += [f"seed {theirs.seed} (the run: {own.seed})"] if theirs.seed != own.seed else []
+    if differ:
+        return f"{ckpt_file} was trained with {', '.join(differ[:3])}: it is not a checkpoint of {run_dir}"
+    return None
+
+
+def load_trained_policy(run_dir: str | Path, checkpoint: str | None = None, *,
+                        allow_foreign: bool = False) -> tuple[RunConfig, PolicyNetwork, int]:
     """A run's config, its policy with a checkpoint's weights (the latest unless ``checkpoint``
-    names one), and the round that checkpoint ends."""
+    names one), and the round that checkpoint ends. A checkpoint of another run, domain or model
+    (``foreign_checkpoint``) is refused with ``CheckpointError`` unless ``allow_foreign``."""
+    cfg, model, ckpt = _load_policy(run_dir, checkpoint, allow_foreign)
+    return cfg, model, ckpt.round_index
+
+
+def _load_policy(run_dir: str | Path, checkpoint: str | None, allow_foreign: bool) -> tuple[RunConfig, PolicyNetwork, Checkpoint]:
     ckpt_file = Path(checkpoint) if checkpoint else Path(run_dir) / "checkpoints" / LATEST
     ckpt = load_checkpoint(ckpt_file)
+    why = why_foreign(run_dir, ckpt, ckpt_file) if checkpoint or (Path(run_dir) / "config.yaml").is_file() else None
+    if why is not None and not allow_foreign:
+        raise CheckpointError(f"{why}; pass --foreign-checkpoint to use it anyway (nothing is then written into {run_dir})")
     cfg = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
     model = build_model_from_config(get_domain(cfg.env.domain), cfg.model)
     load_model_state(model, ckpt, ckpt_file)
-    return cfg, model, ckpt.round_index
+    return cfg, model, ckpt
 
 
 def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False, phrasings: str = "canonical") -> Rollout:
@@ -235,12 +272,29 @@ def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: in
     return "-".join(["eval", *(t for t in tags if t)])
 
 
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary name beside it: a reader (or a second process
+    writing the same file) never sees half a file."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
+    tmp.write_bytes(data)
+    tmp.replace(path)
+
+
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
                  split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
-                 greedy: bool | None = None, phrasings: str | None = None) -> tuple[EvalResult, Path]:
+                 greedy: bool | None = None, phrasings: str | None = None, foreign_checkpoint: bool = False,
+                 out_dir: str | Path | None = None) -> tuple[EvalResult, Path]:
     """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
-    ``report_stem``) and returns the result and the JSON's path."""
+    ``report_stem``) into the run dir (or ``out_dir``), atomically, and returns the result and the
+    JSON's path. A checkpoint of another run, domain or model is refused unless
+    ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir)."""
     run_dir = Path(run_dir)
+    target = Path(out_dir) if out_dir is not None else run_dir
+    if foreign_checkpoint:
+        if out_dir is None:
+            raise UsageError(f"--foreign-checkpoint writes nothing into {run_dir}: give --out DIR for the evaluation's files")
+        if target.resolve().is_relative_to(run_dir.resolve()):
+            raise UsageError(f"--out {target} is inside {run_dir}: a foreign checkpoint's evaluation is written elsewhere")
     for name, value in (("corrections", num_corrections), ("max_tasks", max_tasks)):
         if value is not None and value < 0:
             raise UsageError(f"{name} must be >= 0, got {value}")
@@ -248,9 +302,14 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
         raise UsageError(f"corrections must be at most {MAX_CORRECTIONS}, got {num_corrections}")
     if seeds is not None and not seeds:
         raise UsageError("seeds must name at least one seed")
-    if run_dir.is_dir() and not os.access(run_dir, os.W_OK):
-        raise UsageError(f"cannot write the report into {run_dir} (no write permission)")
-    cfg, model, round_index = load_trained_policy(run_dir, checkpoint)
+    if out_dir is not None:
+        target.mkdir(parents=True, exist_ok=True)
+    if target.is_dir() and not os.access(target, os.W_OK):
+        raise UsageError(f"cannot write the report into {target} (no write permission)")
+    cfg, model, ckpt = _load_policy(run_dir, checkpoint, foreign_checkpoint)
+    round_index, ckpt_run = ckpt.round_index, ckpt.run_id
+    if ckpt_run is None and not foreign_checkpoint:  # saved before run ids: the run's own (checked above)
+        ckpt_run = resolve_identity(run_dir, cfg.buffer.location or str(run_dir / "buffer")).run_id
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     split = split or cfg.eval.split
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
@@ -269,7 +328,8 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                              max_tasks=max_tasks, greedy=greedy, phrasings=phrasings)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
                        checkpoint=checkpoint, phrasings=phrasings)
-    payload = {"run_dir": str(run_dir), "domain": cfg.env.domain, "variant": cfg.model.variant, "split": split,
+    payload = {"run_dir": str(run_dir), "run_id": ckpt_run, "domain": cfg.env.domain, "variant": cfg.model.variant,
+               "split": split,
                "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
                "seeds": list(seeds), "max_tasks": max_tasks,
                "greedy_actions": greedy, "phrasings": phrasings, "trained_with_paraphrases": cfg.model.paraphrases,
@@ -279,9 +339,11 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "correction_effort": dataclasses.asdict(result.effort),
                "paper_completion": {str(k2): v for k2, v in get_domain(cfg.env.domain).paper_completion.items()},
                "reduced_scale": reduced_scale(cfg)}
-    path = run_dir / f"{stem}.json"
-    path.write_text(json.dumps(payload, indent=1) + "\n")
-    plot(cfg.env.domain, result, path.with_suffix(".png"),
+    path = target / f"{stem}.json"
+    png = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{threading.get_ident()}.png")
+    plot(cfg.env.domain, result, png,
          f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}",
          with_paper=payload["reduced_scale"] is None)
+    png.replace(path.with_suffix(".png"))
+    write_atomic(path, (json.dumps(payload, indent=1) + "\n").encode())
     return result, path

@@ -160,14 +160,33 @@ def parse_manifest(text: str, round_index: int) -> RoundManifest:
     return manifest
 
 
-def mark_buffer(root: "str | Location", run_id: str) -> None:
-    """Mark ``root`` as a gpl-dist buffer (once; ``clean`` acts only on marked or committed roots)."""
+def mark_buffer(root: "str | Location", run_id: str, replace: bool = False) -> None:
+    """Mark ``root`` as a gpl-dist buffer of run ``run_id`` (once; ``clean`` acts only on marked or
+    committed roots). ``replace``: mark it anew when another run's marker is there (a new run in a
+    buffer location that holds no committed round)."""
     loc = resolve(root)
-    if not loc.exists(BUFFER_MARKER):
+    if not loc.exists(BUFFER_MARKER) or (replace and buffer_run_id(loc) != run_id):
         from datetime import datetime, timezone
 
         created = datetime.now(timezone.utc).isoformat(timespec="seconds")
         loc.write_bytes_atomic(BUFFER_MARKER, json.dumps({"format_version": 1, "run_id": run_id, "created": created}).encode())
+
+
+def buffer_run_id(root: "str | Location") -> str | None:
+    """The run id the buffer's marker records (the run that created the buffer), or None without a
+    marker; ``BufferIntegrityError`` naming the marker when it is unreadable."""
+    loc = resolve(root)
+    try:
+        raw = loc.read_bytes(BUFFER_MARKER)
+    except FileNotFoundError:
+        return None
+    try:
+        run_id = json.loads(raw.decode()).get("run_id")
+    except (ValueError, UnicodeDecodeError, AttributeError):
+        run_id = None
+    if not isinstance(run_id, str) or not run_id:
+        raise BufferIntegrityError(f"{BUFFER_MARKER} in {loc.url} is unreadable (no run_id)", BUFFER_MARKER)
+    return run_id
 
 
 def is_buffer(root: "str | Location") -> bool:

@@ -7,7 +7,15 @@ What is checked, and reported per file (``gpl-dist verify``, ``gpl-dist inspect`
 * every file a manifest lists exists, has the recorded size and (with ``checksums``) sha256;
 * no round is missing below the newest committed one, unless it was quarantined;
 * no data under ``data/`` belongs to a round without a manifest, or is unlisted in its round's
-  manifest (a deleted manifest would otherwise drop its round silently).
+  manifest (a deleted manifest would otherwise drop its round silently);
+* every manifest and every shard record in it names the buffer's own run (the run id of its marker
+  ``_gpl-dist-buffer.json``, or the one the caller expects): a round copied in from another run is
+  refused, naming both runs.
+
+It needs no lease: a round whose commit completes (or starts) while it reads is seen whole or not
+at all. Data of a round found without a manifest is judged only after the manifests and journals
+have been listed again: a round committed meanwhile is then checked like any other, one being
+committed is in progress.
 
 ``quarantine_round`` moves a round's manifest, journal and data under ``quarantine/round-R/<time>/``
 (nothing is deleted): the round is then uncommitted, and ``train --resume`` collects it again if it
@@ -21,10 +29,12 @@ import os
 from dataclasses import dataclass
 from datetime import datetime, timezone
 
+from gpl_dist.faults import fault_point
 from storage.commit import load_journal, pending_journals
 from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve, sha256_hex
 from storage.layout import (
+    BUFFER_MARKER,
     DATA,
     MANIFESTS,
     QUARANTINE,
@@ -37,7 +47,7 @@ from storage.layout import (
     pending_path,
     round_dir,
 )
-from storage.manifest import RoundManifest, parse_manifest
+from storage.manifest import RoundManifest, buffer_run_id, parse_manifest
 
 #: Written under ``quarantine/round-R/<time>/`` for a round of which nothing was left.
 MISSING_NOTE = "MISSING.txt"
@@ -50,7 +60,8 @@ class Problem:
 
     Kinds: ``manifest`` (unreadable), ``file`` (a listed file missing, resized or changed),
     ``unlisted`` (data under ``data/`` that no manifest lists, or of a round without one),
-    ``gap`` (a round below the newest is missing), ``journal`` (a damaged commit journal).
+    ``gap`` (a round below the newest is missing), ``journal`` (a damaged commit journal),
+    ``foreign`` (a round or shard of another run than the buffer's).
     """
 
     path: str
@@ -73,6 +84,7 @@ class VerifyReport:
         num_bytes: bytes read (checksums) or stat'ed.
         checksums: whether sha256 sums were compared (else sizes only).
         problems: everything found wrong, in round order.
+        run_id: the run the buffer's rounds must belong to (None: no marker and no manifest).
     """
 
     root: str
@@ -83,6 +95,7 @@ class VerifyReport:
     num_bytes: int
     checksums: bool
     problems: tuple[Problem, ...]
+    run_id: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -129,12 +142,13 @@ def _check_files(loc: Location, m: RoundManifest, checksums: bool) -> tuple[list
     return problems, files, nbytes
 
 
-def _unlisted_data(loc: Location, listed: set[str], committed: set[int], skip: set[int]) -> list[Problem]:
-    """Data of rounds without a manifest, and files their round's manifest does not list. The data
-    of ``skip`` rounds is not judged: an unreadable manifest is the problem there, and a commit in
+def _unlisted_data(loc: Location, listed: set[str], committed: set[int], skip: set[int]) -> tuple[list[Problem], set[int]]:
+    """Files of committed rounds that their manifest does not list, and the rounds that have data
+    but no manifest (judged by the caller once it has listed the manifests again). The data of
+    ``skip`` rounds is not judged: an unreadable manifest is the problem there, and a commit in
     progress has data but no manifest yet."""
     problems: list[Problem] = []
-    orphan_rounds: set[tuple[str, int]] = set()
+    orphans: set[int] = set()
     for role in ROLES:
         for name in loc.listdir(f"{DATA}/{role}"):
             r = parse_round_dir(name)
@@ -144,13 +158,30 @@ def _unlisted_data(loc: Location, listed: set[str], committed: set[int], skip: s
             elif r in skip:
                 continue
             elif r not in committed:
-                orphan_rounds.add((rel, r))
+                orphans.add(r)
             else:
                 problems.extend(Problem(p, r, "unlisted", "not listed in its round's manifest")
                                 for p in loc.find(rel) if p not in listed and not os.path.basename(p).startswith(TMP_PREFIX))
-    problems.extend(Problem(rel, r, "unlisted", f"committed data of round {r}, but {manifest_path(r)} is missing (deleted?)")
-                    for rel, r in sorted(orphan_rounds))
-    return problems
+    return problems, orphans
+
+
+def _orphan_problems(loc: Location, rounds: set[int]) -> list[Problem]:
+    return [Problem(f"{DATA}/{role}/{round_dir(r)}", r, "unlisted",
+                    f"committed data of round {r}, but {manifest_path(r)} is missing (deleted?)")
+            for r in sorted(rounds) for role in ROLES if loc.exists(f"{DATA}/{role}/{round_dir(r)}")]
+
+
+def _foreign(m: RoundManifest, run_id: str | None) -> list[Problem]:
+    """The manifest, or shard records in it, of another run than ``run_id``."""
+    if run_id is None:
+        return []
+    rel = manifest_path(m.round_index)
+    if m.run_id != run_id:
+        return [Problem(rel, m.round_index, "foreign",
+                        f"round {m.round_index} belongs to run {m.run_id[:80]}, not to this buffer's run {run_id[:80]}")]
+    return [Problem(rel, m.round_index, "foreign", f"unit {s.unit_index} of round {m.round_index} belongs to run "
+                    f"{s.run_id[:80]}, not to this buffer's run {run_id[:80]}")
+            for s in m.shards if s.run_id != run_id]
 
 
 def _journals(loc: Location) -> tuple[list[int], list[Problem]]:
@@ -169,33 +200,70 @@ def _journals(loc: Location) -> tuple[list[int], list[Problem]]:
     return in_progress, problems
 
 
-def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = True) -> VerifyReport:
-    """Check the committed part of the buffer at ``root`` (see the module docstring)."""
+def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = True,
+                  run_id: str | None = None) -> VerifyReport:
+    """Check the committed part of the buffer at ``root`` (see the module docstring). ``run_id``:
+    the run its rounds must belong to (default: its marker's; a buffer without one, made before
+    markers existed, is held to its first manifest's)."""
     loc = resolve(root)
     problems: list[Problem] = []
     rounds: list[int] = []
     listed: set[str] = set()
     files = nbytes = 0
-    for name in loc.listdir(MANIFESTS):
-        r = parse_manifest_name(name)
-        if r is None:
-            continue
+    try:
+        marked = buffer_run_id(loc)
+    except BufferIntegrityError as err:
+        problems.append(Problem(err.path or "", None, "manifest", str(err)))
+        marked = None
+    expected = run_id or marked
+    if run_id is not None and marked is not None and marked != run_id:
+        problems.append(Problem(BUFFER_MARKER, None, "foreign",
+                                f"the buffer belongs to run {marked[:80]}, not to this run {run_id[:80]}"))
+
+    def check(r: int) -> None:
+        nonlocal files, nbytes, expected
         try:
             m = parse_manifest(loc.read_bytes(manifest_path(r)).decode(errors="replace"), r)
         except ValueError as err:
             problems.append(Problem(manifest_path(r), r, "manifest", f"manifest {err}"))
-            continue
+            return
         rounds.append(r)
+        expected = expected or m.run_id
+        problems.extend(_foreign(m, expected))
         listed.update(f.path for s in m.shards for f in s.files)
         p, n, b = _check_files(loc, m, checksums)
-        problems += p
+        problems.extend(p)
         files += n
         nbytes += b
+
+    for name in loc.listdir(MANIFESTS):
+        r = parse_manifest_name(name)
+        if r is not None:
+            check(r)
     in_progress, journal_problems = _journals(loc)
     problems += journal_problems
+    fault_point("verify.between_listings")
     quarantined = quarantined_rounds(loc)
     unreadable = {p.round_index for p in problems if p.kind in ("manifest", "journal") and p.round_index is not None}
-    problems += _unlisted_data(loc, listed, set(rounds), unreadable | set(in_progress))
+    unlisted, orphans = _unlisted_data(loc, listed, set(rounds), unreadable | set(in_progress))
+    problems += unlisted
+    if orphans:  # list again: a round committed, or being committed, since the first listing is no orphan
+        now_pending = {parse_pending_name(n) for n in pending_journals(loc)}
+        for r in sorted(orphans):
+            if loc.exists(manifest_path(r)):
+                check(r)
+            elif r in now_pending:
+                in_progress.append(r)
+            elif loc.exists(manifest_path(r)):  # committed between the two looks
+                check(r)
+            else:
+                continue
+            orphans.discard(r)
+        problems += _orphan_problems(loc, orphans)
+    for r in [r for r in in_progress if r not in rounds and loc.exists(manifest_path(r))
+              and not loc.exists(pending_path(r))]:  # finished since its journal was listed
+        in_progress.remove(r)
+        check(r)
     accounted = set(rounds) | unreadable | set(quarantined) | set(in_progress)
     accounted |= {p.round_index for p in problems if p.round_index is not None}
     newest = max(accounted - set(quarantined), default=-1)
@@ -204,7 +272,7 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
     problems.sort(key=lambda p: (p.round_index if p.round_index is not None else -1, p.path))
     return VerifyReport(root=loc.url, rounds=tuple(sorted(rounds)), quarantined=quarantined,
                         in_progress=tuple(sorted(in_progress)), num_files=files, num_bytes=nbytes, checksums=checksums,
-                        problems=tuple(problems))
+                        problems=tuple(problems), run_id=expected)
 
 
 def quarantine_round(root: "str | os.PathLike[str] | Location", round_index: int) -> list[str]:

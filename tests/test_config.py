@@ -92,3 +92,51 @@ def test_a_run_saved_before_an_architecture_switch_keeps_its_architecture(tmp_pa
     model = load_config(saved).model
     assert not model.linear_encodings and not model.policy_batchnorm and not model.trajectory_ends_at_last_state
     assert not model.conv_batchnorm
+
+
+def _alias_bomb(levels: int, key: str = "training:\n  num_rounds") -> str:
+    """A YAML alias bomb under a known key: 9**levels strings from a few hundred bytes."""
+    lines = ["a0: &a0 [x, x, x, x, x, x, x, x, x]"]
+    for i in range(1, levels):
+        lines.append(f"a{i}: &a{i} [" + ", ".join([f"*a{i - 1}"] * 9) + "]")
+    lines.append(f"{key}: [" + ", ".join([f"*a{levels - 1}"] * 9) + "]")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize("what", ["alias bomb", "deep nesting"])
+def test_hostile_configs_fail_in_one_line_with_exit_2(tmp_path, capsys, what):
+    """An alias bomb under a known key (before: gigabytes, a MemoryError traceback) and a value
+    nested 500 deep (before: RecursionError), in a run config, a --set value and a suite file."""
+    from gpl_dist.cli import main
+
+    deep = "[" * 500 + "]" * 500
+    body = _alias_bomb(8) if what == "alias bomb" else f"training:\n  num_rounds: {deep}\n"
+    assert len(body) < 2000
+    (tmp_path / "c.yaml").write_text(body)
+    needle = "YAML aliases (*name) are not accepted" if what == "alias bomb" else "nested deeper than 32 levels"
+    cases = [["train", "--config", str(tmp_path / "c.yaml"), "--run-dir", str(tmp_path / "r"), "--serial"],
+             ["train", "--config", "configs/multiroom-smoke.yaml", "--run-dir", str(tmp_path / "r"), "--serial",
+              "--set", "training.num_rounds=" + (deep if what == "deep nesting" else "[&a [x, x], *a]")]]
+    suite = tmp_path / "s.yaml"
+    suite.write_text(body.replace("training:\n  num_rounds", "evaluations") if what == "alias bomb"
+                     else f"evaluations: {deep}\nentries: {{}}\n")
+    cases.append(["suite", "status", str(suite), "--out", str(tmp_path / "o")])
+    for argv in cases:
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and needle in err and len(err) < 700, err
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_wrong_type_names_a_bounded_value(tmp_path):
+    """A huge value of the wrong type is shown cut, never formatted whole."""
+    from gpl_dist.config import bounded_repr, config_from_dict
+
+    huge = [list(range(1000))] * 1000
+    with pytest.raises(ConfigError) as info:
+        config_from_dict({"training": {"num_rounds": huge}})
+    assert len(str(info.value)) < 200 and "expected int, got list [[0, 1, 2, 3, 4, 5, ...]" in str(info.value)
+    assert len(bounded_repr("y" * 10**6)) <= 83
+    with pytest.raises(ConfigError, match="characters long"):
+        load_config(None, {"training.num_rounds": "1" * 20_000})

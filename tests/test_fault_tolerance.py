@@ -241,3 +241,58 @@ def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch
     assert all(sorted(m["failed_tasks"]) == sorted([bad_env, bad_step]) for m in lines)
     # the broken tasks have no attempts; every other task is there exactly once per round
     assert_buffer_exactly_once(root, [0, 1], num_tasks=TINY_TASKS, missing_tasks=frozenset({bad_env, bad_step}))
+
+
+@pytest.mark.cluster
+def test_sigterm_ends_train_like_ctrl_c_in_one_line(tmp_path, tiny_config):
+    """SIGTERM to a ``gpl-dist train`` on local Ray, mid-round (before: Ray's C++ '*** SIGTERM
+    received ... PC: @' dump and exit 134): one line saying how to resume, exit 143, and the
+    resumed run finishes."""
+    run_dir, signals = tmp_path / "run", tmp_path / "signals"
+    signals.mkdir()
+    driver = _Driver(["--config", str(tiny_config), "--run-dir", str(run_dir)], tmp_path / "driver.log",
+                     **{FAULT_ENV: _pause_unit(1, 0, signals)})
+    try:
+        wait_for(signals / "round-1-unit-0.pid", driver.proc)
+        driver.proc.send_signal(signal.SIGTERM)
+        assert driver.proc.wait(120) == 143
+    finally:
+        driver.cleanup()
+    log = (tmp_path / "driver.log").read_text()
+    assert "SIGTERM received" not in log and "PC: @" not in log, log[-3000:]
+    assert f"gpl-dist: terminated (SIGTERM); resume with: gpl-dist train --run-dir {run_dir} --resume" in log
+    assert "Traceback" not in log, log[-3000:]
+    resumed = _Driver(["--run-dir", str(run_dir), "--resume"], tmp_path / "resume.log")
+    assert resumed.finish() == 0, (tmp_path / "resume.log").read_text()[-3000:]
+    assert_buffer_exactly_once(run_dir / "buffer", [0, 1])
+
+
+def test_a_failed_unit_names_its_root_cause_without_ray_decoration(tmp_path, ray_cluster):
+    """Every try of a unit fails writing its shard (here: ``staging`` is a file, so the writer's
+    directories cannot be made, as a full disk would fail them): the round's error is the
+    exception's type and message, with no ANSI colour codes and no Ray traceback."""
+    from gpl_dist.config import config_from_dict
+    from learner.driver import make_units, training_tasks
+    from workers.ray_pool import RayCollector, RoundFailed
+    from workers.rollout import RolloutSettings
+
+    cfg = config_from_dict(yaml.safe_load(TINY_YAML))
+    root = tmp_path / "buffer"
+    root.mkdir()
+    (root / "staging").write_text("not a directory")
+    collector = RayCollector("multiroom", RolloutSettings.of_run(cfg), str(root), "run-x", 1, max_unit_retries=1)
+    try:
+        from gpl_dist.domains import get_domain
+        from gpl_dist.models.build import build_model_from_config, state_dict_to_numpy
+
+        weights = state_dict_to_numpy(build_model_from_config(get_domain("multiroom"), cfg.model, seed=0))
+        units = make_units(training_tasks(cfg)[:2], 0, cfg, cfg.env.train_split, 0)
+        with pytest.raises(RoundFailed) as info:
+            collector.collect_round(units, weights, 0)
+    finally:
+        collector.close()
+    message = str(info.value)
+    assert "failed 2 times; last error: " in message, message
+    cause = message.split("last error: ", 1)[1]
+    assert cause.startswith(("FileExistsError: [Errno 17]", "NotADirectoryError: [Errno 20]")), cause
+    assert "\x1b[" not in message and "ray::" not in message and "Traceback" not in message and len(message) < 500

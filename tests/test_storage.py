@@ -289,3 +289,54 @@ def test_an_attempts_table_from_before_schema_3_reads_its_reward_sums_as_nan():
     assert np.isnan(_with_reward_sum(old).column("reward_sum").to_numpy()).all()
     new = pa.table({"attempt_key": [1], "reward_sum": [3.5]})
     assert _with_reward_sum(new) is new
+
+
+@pytest.mark.parametrize("commit_at", ["verify.between_listings", "commit.between_moves"])
+def test_verify_during_a_commit_reports_no_problem(tmp_path, commit_at):
+    """``verify`` lists the manifests, reads every file, then lists ``data/``: a round committed in
+    between is no orphan (once: a deleted manifest). Driven with the fault points: the commit runs
+    whole at ``verify.between_listings``; or verify runs inside a commit at ``commit.between_moves``."""
+    from gpl_dist import faults
+    from storage.verify import verify_buffer
+
+    root = tmp_path / "run"
+    write_run(root, GRID, rounds=1, units=2)
+    writer = ShardWriter(root, "run-test")
+    records = [writer.write_unit(*synthetic_unit(1, u, [7, 8], GRID, 2, 20), worker_id="w") for u in range(2)]
+    seen = []
+
+    def hook(name, context):
+        if name == commit_at and not seen:
+            seen.append(name)
+            if commit_at == "verify.between_listings":
+                commit_round(root, 1, records)
+            else:
+                seen.append(verify_buffer(root))
+
+    faults.install(hook)
+    try:
+        if commit_at == "verify.between_listings":
+            report = verify_buffer(root)
+        else:
+            commit_round(root, 1, records)
+            report = seen[1]
+    finally:
+        faults.install(None)
+    assert seen and report.ok, report.problems
+    assert set(report.rounds) | set(report.in_progress) == {0, 1}
+    # a deleted manifest is still reported
+    (root / "manifests" / "round-000001.json").unlink()
+    problems = verify_buffer(root).problems
+    assert problems and all("round-000001.json is missing" in p.message for p in problems)
+
+
+def test_verify_refuses_a_round_of_another_run(tmp_path):
+    from storage.verify import verify_buffer
+
+    root = tmp_path / "run"
+    write_run(root, GRID, rounds=1, units=1)
+    other = ShardWriter(root, "another-run")
+    commit_round(root, 1, [other.write_unit(*synthetic_unit(1, 0, [7], GRID, 2, 20), worker_id="w")])
+    report = verify_buffer(root)
+    assert [(p.path, p.kind) for p in report.problems] == [("manifests/round-000001.json", "foreign")]
+    assert "round 1 belongs to run another-run, not to this buffer's run run-test" in report.problems[0].message

@@ -254,7 +254,9 @@ def test_the_report_archives_its_runs_so_a_lost_run_folder_loses_no_row_and_rest
     assert main(["suite", "report", str(first), "--out", str(report)]) == 0
     archived = report / "runs" / "multiroom-gpl" / "seed1"
     assert sorted(p.relative_to(archived).as_posix() for p in archived.rglob("*") if p.is_file()) == [
-        "checkpoints/latest.pt", "config.yaml", "curve-valid.json", "eval.json", "metrics.jsonl", "suite-run.json"]
+        "checkpoints/latest.pt", "config.yaml", "curve-valid.json", "eval.json", "metrics.jsonl", "run.json",
+        "suite-run.json"]
+    assert "multiroom-gpl/seed1/eval.json" in json.loads((report / "runs" / "checksums.json").read_text())["files"]
     gpl_row = next(line for line in (report / "report.md").read_text().splitlines() if line.startswith("| GPL |"))
     assert "| `runs/multiroom-gpl/seed1` |" in (report / "report.md").read_text()
 

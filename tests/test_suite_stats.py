@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from gpl_dist.app.suite.rundata import run_budget, run_health
 from gpl_dist.app.suite.report import PAPER_TABLES, RunResult, cell, comparisons_markdown, healthy, table_markdown
+from gpl_dist.app.suite.rundata import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
 from learner.driver import RoundMetrics
 from learner.health import EncoderHealth

@@ -437,3 +437,12 @@ def test_twenty_requests_for_one_unfinished_gif_render_it_once(teacher, tmp_path
     finally:
         server.should_exit = True
         thread.join(timeout=30)
+
+
+def test_teach_with_stdin_closed_ends_after_the_first_attempt(run, tmp_path):
+    """``gpl-dist teach ... 0<&-`` (before: AttributeError on sys.stdin.isatty after the first attempt)."""
+    done = subprocess.run(["bash", "-c", f"'{GPL_DIST}' teach --run-dir '{run}' --task {TASK} --out '{tmp_path}' 0<&-"],
+                          env=quiet_env(), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "Traceback" not in done.stderr and "standard input is closed" in done.stdout
+    assert list((tmp_path / "log").glob("*.parquet"))

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import socket
 import time
 from collections import deque
@@ -35,6 +36,7 @@ from ray.exceptions import RayActorError, RayTaskError
 
 from gpl_dist.errors import UsageError, UserError
 from gpl_dist.records import WorkUnit
+from gpl_dist.signals import reclaim_sigterm
 from workers.pool import UnitResult, make_worker, run_unit
 from workers.rollout import RolloutSettings
 
@@ -120,6 +122,30 @@ def _quiet_local_auth_notice():
         logger.removeFilter(notice)
 
 
+_ANSI = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]")
+#: Characters of a root cause kept in an error line.
+CAUSE_CHARS = 300
+
+
+def root_cause(err: BaseException) -> str:
+    """``Type: message`` of the exception at the bottom of ``err``: the one a unit raised inside
+    its actor (``RayTaskError.cause``), followed through its explicit causes; one line, without
+    Ray's ANSI colour codes, cut at ``CAUSE_CHARS``."""
+    seen = {id(err)}
+    while True:
+        inner = getattr(err, "cause", None) if isinstance(err, RayTaskError) else None
+        inner = inner if isinstance(inner, BaseException) else err.__cause__
+        if inner is None or id(inner) in seen:
+            break
+        seen.add(id(inner))
+        err = inner
+    text = " ".join(_ANSI.sub("", str(err)).split())
+    if isinstance(err, RayTaskError | RayActorError):  # no cause to unwrap: Ray's own first line
+        text = _ANSI.sub("", str(err)).strip().splitlines()[0] if str(err).strip() else ""
+    text = text[:CAUSE_CHARS] + (" [...]" if len(text) > CAUSE_CHARS else "")
+    return f"{type(err).__name__}: {text}" if text else type(err).__name__
+
+
 #: Seconds to wait for a TCP connection to a cluster's GCS before giving up.
 CONNECT_TIMEOUT_S = 10.0
 
@@ -144,14 +170,17 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
     """
     if ray.is_initialized():
         return False
-    if address:
-        check_reachable(address)
-        ray.init(address=address, **{"log_to_driver": True, **kwargs})
-        return False
-    with _loopback_only(), _quiet_local_auth_notice():
-        ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,
-                 **{"log_to_driver": True, **kwargs})
-    return True
+    try:
+        if address:
+            check_reachable(address)
+            ray.init(address=address, **{"log_to_driver": True, **kwargs})
+            return False
+        with _loopback_only(), _quiet_local_auth_notice():
+            ray.init(num_cpus=max(num_workers, os.cpu_count() or 1), include_dashboard=False, _temp_dir=temp_dir,
+                     **{"log_to_driver": True, **kwargs})
+        return True
+    finally:
+        reclaim_sigterm()  # Ray's core worker replaced it with a handler that dumps a C++ stack and aborts
 
 
 class RayCollector:
@@ -193,7 +222,7 @@ class RayCollector:
     def _replace(self, i: int, err: BaseException, why: str = "is gone for good") -> None:
         self.replaced_actors += 1
         if self.replaced_actors > self.max_unit_retries + len(self.actors):
-            raise RoundFailed(f"replaced {self.replaced_actors} rollout actors; last error: {err}") from err
+            raise RoundFailed(f"replaced {self.replaced_actors} rollout actors; last error: {root_cause(err)}") from err
         log.warning("rollout actor-%d %s (%s); starting a replacement", i, why, type(err).__name__)
         ray.kill(self.actors[i], no_restart=True)
         self.actors[i] = self._new_actor(i)
@@ -239,7 +268,7 @@ class RayCollector:
                     result, node = ray.get(ref)
                 except (RayActorError, RayTaskError) as err:
                     self._count_failed_try(key, err)
-                    log.warning("unit %s failed on actor-%d (%s); handing it out again", key, i, type(err).__name__)
+                    log.warning("unit %s failed on actor-%d (%s); handing it out again", key, i, root_cause(err))
                     queue.appendleft(unit)
                     if isinstance(err, RayActorError):
                         self._probe(i)  # dead: Ray restarts it (maybe on another node, maybe much later)
@@ -258,7 +287,7 @@ class RayCollector:
         """Count a failed try of unit ``key``; the round fails once it failed too often."""
         self.unit_tries[key] = self.unit_tries.get(key, 0) + 1
         if self.unit_tries[key] > self.max_unit_retries:
-            raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {err}") from err
+            raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {root_cause(err)}") from err
 
     def _hand_out_overdue_again(self, inflight: dict, queue: deque) -> None:
         """Units out longer than ``unit_timeout_s``: each is a failed try; its actor is replaced (a

@@ -111,11 +111,13 @@ class TrainedPolicy:
         return oracle.correct(env, correction_rng(seed, attempt.task_id, attempt.attempt_index)).text
 
 
-def load_policy(run_dir: str | Path, checkpoint: str | Path | None = None, greedy: bool = False) -> TrainedPolicy:
+def load_policy(run_dir: str | Path, checkpoint: str | Path | None = None, greedy: bool = False, *,
+                allow_foreign: bool = False) -> TrainedPolicy:
     """The policy of ``run_dir`` with ``checkpoint``'s weights (default ``RUN_DIR/checkpoints/latest.pt``,
-    loaded with ``weights_only=True``)."""
+    loaded with ``weights_only=True``). A checkpoint of another run, domain or model is refused
+    (``CheckpointError``) unless ``allow_foreign``."""
     ckpt = Path(checkpoint).resolve() if checkpoint else Path(run_dir).resolve() / "checkpoints" / LATEST
-    cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
+    cfg, model, round_index = load_trained_policy(run_dir, str(ckpt), allow_foreign=allow_foreign)
     model.eval()
     return TrainedPolicy(str(Path(run_dir).resolve()), str(ckpt), cfg, model, round_index, get_domain(cfg.env.domain),
                          bool(greedy))

@@ -136,19 +136,21 @@ def step_caption(t: int, last: int, replay: Replay) -> str:
 
 
 def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, seed: int = 0,
-                          checkpoint: str | None = None, frame_stride: int | None = None) -> list[np.ndarray]:
+                          checkpoint: str | None = None, frame_stride: int | None = None,
+                          foreign_checkpoint: bool = False) -> list[np.ndarray]:
     """Frames of a trained policy's successive attempts at ``task_id``, as at meta-test.
 
     The run's policy makes up to ``num_attempts`` attempts, each after the oracle's correction of
     the one before (the run's own conditioning and oracle, ``workers.loop.Rollout``); each attempt
     is then replayed from its reset seed and actions to draw it. Every frame carries a caption:
     the attempt, the correction that led to it (the instruction for the first), and the attempt's
-    completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt).
+    completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt). A
+    checkpoint of another run, domain or model is refused unless ``foreign_checkpoint``.
     """
 
     if num_attempts < 1:
         raise UsageError(f"--attempts must be at least 1, got {num_attempts}")
-    cfg, model, _ = load_trained_policy(run_dir, checkpoint)
+    cfg, model, _ = load_trained_policy(run_dir, checkpoint, allow_foreign=foreign_checkpoint)
     domain = get_domain(cfg.env.domain)
     if not 0 <= task_id < domain.num_tasks:
         raise UsageError(f"task {task_id} is outside 0..{domain.num_tasks - 1} of {domain.name}")

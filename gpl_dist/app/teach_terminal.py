@@ -84,6 +84,9 @@ def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
     say(HELP)
     while True:
         _discard_typed_ahead()  # lines typed while the attempt ran were typed before seeing it
+        if read_line is input and _stdin_closed():
+            say("standard input is closed: no more corrections can be read (gpl-dist serve teaches in a browser)")
+            return None
         try:
             line = read_line("correction> " if pending is None else "Enter: send as typed, :use: send the closest, "
                              "or type another> ")
@@ -125,10 +128,19 @@ def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
         pending = (check.text, check.suggestion)
 
 
-def _discard_typed_ahead() -> None:
-    """Drop what was typed at a terminal before the prompt appeared (no-op for piped input)."""
+def _stdin_closed() -> bool:
+    """Whether this process has no standard input to read (started with ``0<&-``, or it was closed)."""
     import sys
 
+    return sys.stdin is None or sys.stdin.closed
+
+
+def _discard_typed_ahead() -> None:
+    """Drop what was typed at a terminal before the prompt appeared (no-op for piped or closed input)."""
+    import sys
+
+    if _stdin_closed():
+        return
     try:
         import termios
 

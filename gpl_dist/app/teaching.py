@@ -189,12 +189,14 @@ class Teacher:
     """
 
     def __init__(self, run_dir: str | Path, checkpoint: str | None = None,
-                 max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False):
+                 max_corrections: int = DEFAULT_MAX_CORRECTIONS, greedy: bool = False, allow_foreign: bool = False):
 
-        self.policy = load_policy(run_dir, checkpoint, greedy=greedy)
+        self.policy = load_policy(run_dir, checkpoint, greedy=greedy, allow_foreign=allow_foreign)
         self.run_dir = self.policy.run_dir
         #: the checkpoint file taught (absolute), as the log records it
         self.checkpoint = self.policy.checkpoint
+        #: a checkpoint of another run, domain or model, taught as asked (``--foreign-checkpoint``)
+        self.foreign = allow_foreign
         self.cfg, self.model, self.round_index = self.policy.cfg, self.policy.model, self.policy.round_index
         variant = self.cfg.model.variant
         if variant not in TEACHABLE_VARIANTS:

@@ -18,19 +18,20 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import statistics
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from gpl_dist.app.suite.archive import archive_runs
-from gpl_dist.app.suite.rundata import RunBudget, RunHealth, learning_curve, run_budget, run_health
+from gpl_dist.app.suite.archive import archive_runs, check_archive
+from gpl_dist.app.suite.evidence import read_json
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
+from gpl_dist.app.suite.rundata import RunBudget, RunHealth, learning_curve, run_budget, run_health
 from gpl_dist.app.suite.runs import RECORD_VERSION
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
 from gpl_dist.app.suite.stats import MeanCI, Welch, mean_ci, welch
+from gpl_dist.config import load_yaml_text
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 
@@ -212,11 +213,14 @@ class Cell:
         return f"{paper}" if where in ("inside", "unknown") else f"{paper}; ours {where}"
 
 
-def collect_results(suite_out: str | Path) -> list[RunResult]:
-    """Every evaluation recorded under ``suite_out/<entry>/seed<k>/suite-run.json``."""
+def collect_results(suite_out: str | Path, log=print) -> list[RunResult]:
+    """Every evaluation recorded under ``suite_out/<entry>/seed<k>/suite-run.json``, once the
+    whole folder's evidence has been checked (``archive.check_archive``: checksums, each eval
+    file's consistency; ``EvidenceError`` naming the first bad file)."""
     root = Path(suite_out)
     if not root.is_dir():
         raise RunDirError(f"no suite output at {root}")
+    check_archive(root, log)
     results = []
     for record_path in sorted(root.glob("*/seed*/suite-run.json")):
         record = _read_json(record_path)
@@ -237,15 +241,7 @@ def collect_results(suite_out: str | Path) -> list[RunResult]:
     return results
 
 
-def _read_json(path: Path) -> dict:
-    """A record or eval file; a missing or damaged one fails in one line naming it."""
-    try:
-        value = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err})") from None
-    if not isinstance(value, dict):
-        raise RunDirError(f"{path} does not hold a JSON object")
-    return value
+_read_json = read_json
 
 
 def _check_same_settings(results: list[RunResult]) -> None:
@@ -300,9 +296,7 @@ def planned_seeds(suite_yaml: Path) -> dict[str, tuple[int, ...]]:
     """Each entry's training seeds in a suite file's copy (``OUT/suite.yaml``, written by ``suite
     run``), read without resolving base configs (relative to where the original lies); {} when
     there is no copy."""
-    import yaml
-
-    raw = yaml.safe_load(suite_yaml.read_text()) if suite_yaml.is_file() else None
+    raw = load_yaml_text(suite_yaml.read_text(), suite_yaml) if suite_yaml.is_file() else None
     entries = raw.get("entries") if isinstance(raw, dict) else None
     if not isinstance(entries, dict):
         return {}

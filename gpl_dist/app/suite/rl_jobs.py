@@ -28,11 +28,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-import yaml
-
 from gpl_dist.app.suite.rl_plan import ATTEMPTS, AttemptsJob, RLPlan, attempts_jobs, parse_rl_plan, rl_jobs
 from gpl_dist.app.suite.runs import code_commit
-from gpl_dist.config import ConfigError, ModelConfig, load_config
+from gpl_dist.config import ConfigError, ModelConfig, load_config, load_yaml_text
 from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import state_dict_to_numpy
 from learner.checkpoint import rounds_trained
@@ -217,7 +215,7 @@ def plan_of_copy(suite_yaml: str | Path) -> RLPlan | None:
     when there is no copy or it has no ``rl`` section."""
 
     path = Path(suite_yaml)
-    raw = yaml.safe_load(path.read_text()) if path.is_file() else None
+    raw = load_yaml_text(path.read_text(), path) if path.is_file() else None
     if not isinstance(raw, dict) or "rl" not in raw:
         return None
     return parse_rl_plan(f"{path}: rl", raw["rl"], tuple(raw.get("entries") or ()))

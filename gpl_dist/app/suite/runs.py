@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from gpl_dist.app.suite.curves import CURVE_TASKS, CurveSettings, compute_curve
+from gpl_dist.app.suite.evidence import CHECKSUMS, check_run
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
 from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
 from gpl_dist.domains import get_domain
@@ -19,6 +20,7 @@ from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
 from learner.driver import run_training
 from learner.evaluate import evaluate_run
+from storage.lease import Lease
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
 RECORD_VERSION = 1
@@ -58,7 +60,7 @@ def read_record(run_dir: Path) -> dict | None:
 
 
 def _write_record(run_dir: Path, record: dict) -> None:
-    tmp = run_dir / "suite-run.json.tmp"
+    tmp = run_dir / f".suite-run.json.tmp-{os.getpid()}"
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     tmp.replace(run_dir / "suite-run.json")
 
@@ -88,7 +90,10 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
         return "new"  # nothing but lease files: a driver stopped before writing anything
     if rounds_trained(run.run_dir) < cfg.training.num_rounds:
         return "resume"
-    done = (read_record(run.run_dir) or {}).get("evaluations", {})
+    record = read_record(run.run_dir) or {}
+    done = record.get("evaluations", {})
+    if done:  # what counts must check itself: each eval file, and a restored run's checksums
+        check_run(run.run_dir)
     for name, ev in done.items():
         now = suite.evaluations[name].settings() if name in suite.evaluations else None
         recorded = {**EVAL_DEFAULTS, **(ev.get("settings") or {})}  # a setting added later: its default
@@ -106,6 +111,8 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
 
     commit = commit or code_commit()
     state = run_state(run, suite)
+    if state != "done":  # the suite changes the run: it is no longer an archive's copy (checked just above)
+        (run.run_dir / CHECKSUMS).unlink(missing_ok=True)
     record = read_record(run.run_dir) or {"version": RECORD_VERSION, "suite": str(suite.path), "entry": run.entry.name,
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
@@ -116,7 +123,19 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                      progress=progress)
         record["train_seconds"] += time.perf_counter() - t0
         _write_record(run.run_dir, record)
-    for name in run.entry.evaluations:
+    todo = [name for name in run.entry.evaluations if name not in record["evaluations"]]
+    if todo:
+        with Lease(run.run_dir, "gpl-dist suite run (evaluating)"):  # a second suite run is refused, naming this one
+            record = _evaluate(run, suite, todo, log, commit, record)
+    _valid_curve(run, suite, log)  # resumes a partial curve; a curve done is not recomputed
+    return record
+
+
+def _evaluate(run: SuiteRun, suite: Suite, names: list[str], log, commit: str, record: dict) -> dict:
+    """Write each of ``names`` (the run's evaluations not yet done) and record it; read the record
+    again first (under the lease): another suite run may have written some meanwhile."""
+    record = read_record(run.run_dir) or record
+    for name in names:
         if name in record["evaluations"]:
             continue
         evaluation = suite.evaluations[name]
@@ -128,7 +147,6 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
                                        "commit": commit, "settings": evaluation.settings()}
         _write_record(run.run_dir, record)
-    _valid_curve(run, suite, log)
     return record
 
 

@@ -34,10 +34,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
-
 from gpl_dist.app.suite.rl_plan import parse_rl_plan
-from gpl_dist.config import ConfigError, EvalConfig, RunConfig, eval_config_from_dict, load_config
+from gpl_dist.config import (
+    ConfigError,
+    EvalConfig,
+    RunConfig,
+    bounded_repr,
+    eval_config_from_dict,
+    load_config,
+    load_yaml_text,
+)
 
 #: Evaluation settings a suite file must give: fixed for every entry that names the evaluation.
 _EVAL_REQUIRED = {"split", "seeds", "num_corrections", "greedy_actions"}
@@ -129,8 +135,8 @@ def _keys(where: str, mapping: Any, allowed: set[str], required: set[str]) -> No
 def check_seeds(where: str, value: Any) -> tuple[int, ...]:
     """A list of distinct training or evaluation seeds >= 0; anything else fails in one line naming ``where``."""
     ok = isinstance(value, list) and value and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in value)
-    _expect(bool(ok), where, f"expected a non-empty list of seeds >= 0, got {value!r}")
-    _expect(len(set(value)) == len(value), where, f"seeds repeat: {value}")
+    _expect(bool(ok), where, f"expected a non-empty list of seeds >= 0, got {bounded_repr(value)}")
+    _expect(len(set(value)) == len(value), where, f"seeds repeat: {bounded_repr(value)}")
     return tuple(value)
 
 
@@ -166,9 +172,9 @@ def load_suite(path: str | Path) -> Suite:
     if not path.is_file():
         raise ConfigError(f"suite file not found: {path}")
     try:
-        raw = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path} is not valid YAML ({str(err).splitlines()[0]})") from None
+        raw = load_yaml_text(path.read_text(), path)
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path} is not a text file") from None
     _keys(str(path), raw, {"evaluations", "entries", "rl"}, {"evaluations", "entries"})
     for section in ("evaluations", "entries"):
         _expect(isinstance(raw[section], dict) and bool(raw[section]), f"{path}: {section}",
@@ -177,7 +183,7 @@ def load_suite(path: str | Path) -> Suite:
     entries = []
     for name, spec in raw["entries"].items():
         _expect(isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum(), f"{path}: entries",
-                f"an entry's name is letters, digits, '-' and '_' (it names a folder), got {name!r}")
+                f"an entry's name is letters, digits, '-' and '_' (it names a folder), got {bounded_repr(name)}")
         entries.append(_entry(f"{path}: entries.{name}", name, spec, path.parent, evaluations))
     rl = None
     if "rl" in raw:
