@@ -303,10 +303,16 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    """``gpl-dist export``: a run's committed buffer as a Minari dataset (``gpl_dist.app.export``)."""
-    from gpl_dist.app.export import export_minari
+    """``gpl-dist export``: a run's committed buffer, or a folder of teaching logs, as a Minari
+    dataset (``gpl_dist.app.export``)."""
+    from gpl_dist.app.export import export_minari, export_teaching_minari, is_teaching_log
 
-    dataset_id, n = export_minari(args.run_dir, _buffer_root(args.run_dir), args.out, args.dataset_id)
+    if is_teaching_log(args.run_dir):
+        dataset_id, n = export_teaching_minari(args.run_dir, args.out, args.dataset_id, run_dir=args.teaching_run_dir)
+    else:
+        if args.teaching_run_dir:
+            raise UsageError(f"--teaching-run-dir is for a folder of teaching logs; {args.run_dir} is not one")
+        dataset_id, n = export_minari(args.run_dir, _buffer_root(args.run_dir), args.out, args.dataset_id)
     print(f"wrote Minari dataset {dataset_id} ({n} episodes, one per attempt) under {args.out}; read it with "
           f"MINARI_DATASETS_PATH={args.out} python -c \"import minari; print(minari.load_dataset('{dataset_id}'))\"")
     return 0
@@ -569,11 +575,14 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--port", type=int, default=8000, help="port to listen on (default 8000)")
         p.set_defaults(func=func)
 
-    p = sub.add_parser("export", help="write a run's buffer as a Minari dataset (each attempt an episode)")
-    p.add_argument("run_dir", help="a run dir with a buffer")
+    p = sub.add_parser("export", help="write a run's buffer, or teaching logs, as a Minari dataset (each attempt an episode)")
+    p.add_argument("run_dir", metavar="PATH", help="a run dir with a buffer, or a folder of teaching logs "
+                                                   "(RUN_DIR/teaching/log: every attempt replayed from its seed)")
     p.add_argument("--format", choices=("minari",), default="minari", help="dataset format (Minari's arrow storage)")
     p.add_argument("--out", required=True, help="the Minari datasets folder (MINARI_DATASETS_PATH) to write into")
-    p.add_argument("--dataset-id", help="dataset id (default gpl-dist/<domain>-<run dir name>-v0)")
+    p.add_argument("--dataset-id", help="dataset id (default gpl-dist/<domain>-<folder name>-v0)")
+    p.add_argument("--teaching-run-dir", help="teaching logs only: the run dir to replay with, in place of the one "
+                                              "the logs name (logs copied from another machine)")
     p.set_defaults(func=cmd_export)
 
     p = sub.add_parser("inspect", help="summarise a run's committed buffer (after verifying it)")

@@ -66,3 +66,47 @@ def test_every_field_of_every_attempt_round_trips_through_minari(run, tmp_path, 
         assert meta["corrections_before_ids"] == [list(by_key[k]["correction_ids"]) for k in a["context_keys"]]
     assert any(m["corrections_before"] for m in metas)  # later attempts carry the corrections they followed
     assert main(["export", str(run), "--out", str(out), "--dataset-id", "gpl-dist/mr-smoke-v0"]) == 2  # never overwritten
+
+
+def test_a_teaching_log_exports_every_attempt_replayed_undone_ones_included(run, tmp_path, monkeypatch, capsys):
+    """Issue 40, item 4: teaching logs export the same way; each attempt is replayed from its seed
+    and the corrections it followed (an undone one too), with what the person typed beside."""
+    from gpl_dist.app.export import teaching_chains
+    from gpl_dist.app.teaching import Teacher, write_episode_log
+
+    teacher = Teacher(run)
+    episode = teacher.episode(5, seed=2, source="test")
+    episode.attempt()
+    episode.attempt("enter the gry room")
+    undone = episode.undo()
+    episode.attempt("enter the grey room", typed="go into the grey rom")
+    episode.attempt("go to the blue triangle")
+    log = tmp_path / "log"
+    write_episode_log(episode, log)
+    rows = pads.dataset(str(log), format="parquet").to_table().to_pylist()
+    assert len(rows) == 4 and sum(r["undone"] for r in rows) == 1
+    out = tmp_path / "datasets"
+    assert main(["export", str(log), "--out", str(out), "--dataset-id", "gpl-dist/taught-v0"]) == 0
+    assert "4 episodes" in capsys.readouterr().out
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
+    dataset = minari.load_dataset("gpl-dist/taught-v0")
+    metas = list(dataset.storage.get_episode_metadata(dataset.episode_indices))
+    made = sorted(episode.attempts + [undone], key=lambda a: a.started_at)
+    assert [(m["attempt_index"], m["undone"]) for m in metas] == [(0, False), (1, True), (1, False), (2, False)]
+    by_key = {(m["attempt_index"], m["undone"], tuple(m["corrections_before"])): (e, m)
+              for e, m in zip(dataset.iterate_episodes(), metas)}
+    assert len(by_key) == 4
+    for a in made:
+        is_undone = a is undone
+        texts = tuple(x.check.text for x in episode.attempts[1:a.index]) + ((a.check.text,) if a.check else ())
+        e, m = by_key[(a.index, is_undone, texts)]
+        assert np.array_equal(e.actions, a.actions) and np.array_equal(e.observations["observation"][:-1], a.record.observations)
+        assert np.array_equal(e.infos["expert_action"][:-1], a.record.expert_actions)
+        assert m["completion"] == a.completion == float(e.infos["completion"][-1])
+        assert m["seed"] == 2 and m["task_id"] == 5 and m["episode"] == episode.episode_id
+        assert m["typed_before"] == (a.typed if a.check else "")
+    assert by_key[(1, False, ("enter the grey room",))][1]["typed_before"] == "go into the grey rom"
+    assert by_key[(1, True, ("enter the gry room",))][1]["unknown_words"] == ["gry"]
+    # the chain rebuilt from the rows alone: attempt 2 followed the attempt made in the undone one's place
+    chains = {(r["attempt"], r["undone"]): [c["correction_before"] for c in chain] for r, chain in teaching_chains(rows)}
+    assert chains[(2, False)] == ["", "enter the grey room"] and chains[(1, True)] == [""]

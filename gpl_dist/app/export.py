@@ -1,4 +1,5 @@
-"""``gpl-dist export RUN --format minari --out DIR``: a run's buffer as a Minari dataset.
+"""``gpl-dist export PATH --format minari --out DIR``: a run's buffer, or a folder of teaching
+logs, as a Minari dataset.
 
 Minari (Farama's offline-RL dataset standard, ``pip install "gpl-dist[export]"``) stores episodes of
 (observation, action, reward, termination, truncation, info). Each committed attempt of the buffer
@@ -22,6 +23,18 @@ JPEG-encoded):
   attempt of the same task and round, in order: what this attempt was conditioned on) and
   ``correction_after`` / ``correction_after_ids`` / ``correction_after_kind`` (the one given after
   this attempt: the buffer's ``correction`` column).
+
+**Teaching logs** (``gpl-dist teach``/``serve``, ``gpl_dist.app.teaching.LOG_SCHEMA``) export the
+same way (``export_teaching_minari``): each logged attempt, undone ones included, is replayed from
+its episode's seed and the corrections it was conditioned on (exact: the rollout is seeded), checked
+against the completion the log recorded, and written as an episode of the same spaces, labelled by
+the expert. Its metadata: ``episode``, ``source``, ``run_dir``, ``checkpoint``, ``checkpoint_round``,
+``greedy``, ``task_id``, ``split``, ``attempt_index``, ``seed``, ``completion``, ``success``,
+``solved_at``, ``undone``, ``hint_shown``, ``started_at``, ``seconds``, the language as above
+(``corrections_before`` as the policy read them, with ids) and what the person typed:
+``typed_before`` (the text typed for the correction that led to this attempt: it differs from the
+last of ``corrections_before`` when the closest known phrasing was sent) and ``unknown_words``.
+A teaching log has no ``correction_after``: the correction after an attempt is the next attempt's.
 
 ``minari.load_dataset(DATASET_ID)`` with ``MINARI_DATASETS_PATH=DIR`` reads it back.
 """
@@ -55,29 +68,24 @@ def default_dataset_id(run_dir: str | Path, domain: str) -> str:
     return f"gpl-dist/{domain}-{name}-v0"
 
 
-def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, dataset_id: str | None = None) -> tuple[str, int]:
-    """Write the committed buffer of ``run_dir`` (at ``buffer_root``) as a Minari dataset under the
-    datasets folder ``out``; returns the dataset id and the number of episodes."""
+def _minari():
+    """Minari's episode buffer, dataset and storage classes; a ``UsageError`` without minari."""
     try:
-        import gymnasium as gym
         from minari.data_collector import EpisodeBuffer
         from minari.dataset.minari_dataset import MinariDataset
         from minari.dataset.minari_storage import MinariStorage
     except ImportError:
         raise UsageError('the Minari export needs minari: pip install "gpl-dist[export]"') from None
+    return EpisodeBuffer, MinariDataset, MinariStorage
 
-    run_dir = Path(run_dir)
-    cfg = load_config(run_dir / "config.yaml")
-    domain = get_domain(cfg.env.domain)
-    vocab = domain.vocabulary_for(cfg.model.paraphrases)
-    dataset_id = dataset_id or default_dataset_id(run_dir, domain.name)
+
+def _new_storage(MinariStorage, domain, vocab, out: str | Path, dataset_id: str) -> tuple[Any, Path]:
+    """A new Minari storage of ``domain``'s spaces (the observation dict above) at ``out/dataset_id``."""
+    import gymnasium as gym
+
     target = Path(out) / dataset_id
     if target.exists():
         raise UsageError(f"{target} exists: remove it or give another --dataset-id")
-    loc = resolve(buffer_root)
-    rounds = committed_rounds(loc)
-    if not rounds:
-        raise UsageError(f"{buffer_root} has no committed round to export")
     env = domain.make_env(0)
     observation_space = gym.spaces.Dict({
         "observation": env.observation_space,
@@ -88,6 +96,33 @@ def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, datase
     data_path.mkdir(parents=True)
     storage = MinariStorage.new(data_path, observation_space=observation_space, action_space=env.action_space,
                                 data_format="arrow", jpeg_encoding=False)
+    return storage, data_path
+
+
+def _finish(storage, MinariDataset, data_path: Path, dataset_id: str, metas: list[dict], algorithm: str,
+            description: str) -> None:
+    storage.update_episode_metadata(metas, range(len(metas)))
+    storage.update_metadata({
+        "dataset_id": dataset_id, "algorithm_name": algorithm, "description": description,
+        "author": {"gpl-dist"}, "code_permalink": "gpl_dist/app/export.py", "minari_version": _minari_version(),
+    })
+    MinariDataset(data_path)  # reads back: fails here, not in a user's loader
+
+
+def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, dataset_id: str | None = None) -> tuple[str, int]:
+    """Write the committed buffer of ``run_dir`` (at ``buffer_root``) as a Minari dataset under the
+    datasets folder ``out``; returns the dataset id and the number of episodes."""
+    EpisodeBuffer, MinariDataset, MinariStorage = _minari()
+    run_dir = Path(run_dir)
+    cfg = load_config(run_dir / "config.yaml")
+    domain = get_domain(cfg.env.domain)
+    vocab = domain.vocabulary_for(cfg.model.paraphrases)
+    dataset_id = dataset_id or default_dataset_id(run_dir, domain.name)
+    loc = resolve(buffer_root)
+    rounds = committed_rounds(loc)
+    if not rounds:
+        raise UsageError(f"{buffer_root} has no committed round to export")
+    storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
     metas: list[dict[str, Any]] = []
 
     def episodes():
@@ -104,18 +139,130 @@ def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, datase
                 for a in attempts:
                     rows = keys == a["attempt_key"]
                     stored = np.asarray(obs[a["obs_start"]:a["obs_start"] + a["length"]])
-                    yield _episode(EpisodeBuffer, domain, a, stored, actions[rows], labels[rows], by_key, metas)
+                    before = [by_key[k] for k in a["context_keys"]]
+                    metas.append({
+                        "task_id": a["task_id"], "split": a["split"], "attempt_index": a["attempt_index"],
+                        "round": a["round"], "unit": a["unit"], "attempt_key": a["attempt_key"], "seed": a["seed"],
+                        "policy_version": a["policy_version"], "worker_id": a["worker_id"],
+                        "completion": a["completion"], "success": a["success"], "reward_sum": a.get("reward_sum"),
+                        "instruction": a["instruction"], "instruction_ids": list(a["instruction_ids"]),
+                        "corrections_before": [b["correction"] for b in before],
+                        "corrections_before_ids": [list(b["correction_ids"]) for b in before],
+                        "correction_after": a["correction"], "correction_after_ids": list(a["correction_ids"]),
+                        "correction_after_kind": a["correction_kind"],
+                    })
+                    json.dumps(metas[-1])  # plain values only
+                    yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a["task_id"]), int(a["seed"]),
+                                   a["instruction"], a["instruction_ids"], stored, actions[rows], labels[rows],
+                                   f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']})")
 
     storage.update_episodes(episodes())
-    storage.update_episode_metadata(metas, range(len(metas)))
-    storage.update_metadata({
-        "dataset_id": dataset_id, "algorithm_name": "DAgger with language corrections (GPL, Co-Reyes et al. 2019)",
-        "description": f"gpl-dist buffer of {run_dir.resolve()} ({domain.name}, model.variant {cfg.model.variant}): "
-                       "each committed attempt an episode; see gpl_dist/app/export.py",
-        "author": {"gpl-dist"}, "code_permalink": "gpl_dist/app/export.py",
-        "minari_version": _minari_version(),
-    })
-    MinariDataset(data_path)  # reads back: fails here, not in a user's loader
+    _finish(storage, MinariDataset, data_path, dataset_id, metas,
+            "DAgger with language corrections (GPL, Co-Reyes et al. 2019)",
+            f"gpl-dist buffer of {run_dir.resolve()} ({domain.name}, model.variant {cfg.model.variant}): "
+            "each committed attempt an episode; see gpl_dist/app/export.py")
+    return dataset_id, len(metas)
+
+
+def is_teaching_log(path: str | Path) -> bool:
+    """Whether ``path`` is a folder of teaching logs (``*.parquet``, no run's ``config.yaml``)."""
+    p = Path(path)
+    return p.is_dir() and not (p / "config.yaml").is_file() and any(p.glob("*.parquet"))
+
+
+def teaching_chains(rows: list[dict]) -> list[tuple[dict, list[dict]]]:
+    """Each logged attempt with the attempts it was conditioned on (``rows`` of one episode, in any
+    order): in the order they were made, an attempt of index ``k`` follows the first ``k`` attempts
+    then standing (an undo takes the last one back, so the next attempt has its index)."""
+    stack: list[dict] = []
+    chains = []
+    for row in sorted(rows, key=lambda r: (r["started_at"], r["attempt"])):
+        k = int(row["attempt"])
+        if k > len(stack):
+            raise UsageError(f"teaching episode {str(row['episode'])[:40]}: attempt {k} follows {len(stack)} attempt(s) "
+                             "(a row is missing from the log)")
+        stack = stack[:k]
+        chains.append((row, list(stack)))
+        stack.append(row)
+    return chains
+
+
+def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str | None = None,
+                           run_dir: str | Path | None = None) -> tuple[str, int]:
+    """Write every attempt of the teaching logs in ``log_dir`` as a Minari dataset under ``out``
+    (see the module docstring); returns the dataset id and the number of episodes. ``run_dir``
+    replaces the run dir the logs name (logs copied from another machine)."""
+    import pyarrow.dataset as ds
+
+    from gpl_dist.app.policy import load_policy
+    from gpl_dist.app.teaching import LOG_SCHEMA
+
+    EpisodeBuffer, MinariDataset, MinariStorage = _minari()
+    log_dir = Path(log_dir)
+    files = sorted(log_dir.glob("*.parquet"))
+    if not files:
+        raise UsageError(f"{log_dir} holds no teaching log (*.parquet)")
+    try:
+        table = ds.dataset([str(f) for f in files], format="parquet").to_table()
+    except (OSError, ValueError) as err:
+        raise UsageError(f"cannot read the teaching logs in {log_dir} ({type(err).__name__}: {str(err)[:200]})") from None
+    missing = [n for n in LOG_SCHEMA.names if n not in table.column_names]
+    if missing:
+        raise UsageError(f"{log_dir}: not teaching logs (no column {', '.join(missing[:3])})")
+    rows = table.to_pylist()
+    sources = {(r["run_dir"], r["checkpoint"], bool(r["greedy"]), r["domain"]) for r in rows}
+    domains = {s[3] for s in sources}
+    if len(domains) != 1:
+        raise UsageError(f"{log_dir}: logs of several domains ({', '.join(sorted(domains))}); export one domain a folder")
+    domain = get_domain(domains.pop())
+    policies: dict[tuple, Any] = {}
+    for run, ckpt, greedy, _ in sources:
+        run = str(run_dir) if run_dir else run
+        if not Path(ckpt).is_file():
+            raise UsageError(f"the checkpoint {ckpt} the logs name is not here: export on the machine that taught, "
+                             "or restore the run and give --run-dir")
+        policies[(run, ckpt, greedy)] = load_policy(run, ckpt, greedy=greedy, allow_foreign=True)
+    vocab = next(iter(policies.values())).domain.vocabulary_for(next(iter(policies.values())).cfg.model.paraphrases)
+    dataset_id = dataset_id or default_dataset_id(log_dir, domain.name)
+    storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
+    by_episode: dict[str, list[dict]] = {}
+    for r in rows:
+        by_episode.setdefault(r["episode"], []).append(r)
+    metas: list[dict[str, Any]] = []
+
+    def episodes():
+        for episode in sorted(by_episode):
+            for row, chain in teaching_chains(by_episode[episode]):
+                policy = policies[(str(run_dir) if run_dir else row["run_dir"], row["checkpoint"], bool(row["greedy"]))]
+                texts = [r["correction_before"] for r in chain[1:]] + ([row["correction_before"]] if chain else [])
+                a = policy.attempts(int(row["task_id"]), texts, seed=int(row["seed"]))[-1]
+                what = f"teaching episode {episode[:40]} attempt {row['attempt']} (task {row['task_id']})"
+                if a.completion != row["completion"]:
+                    raise UsageError(f"{what} replays to completion {a.completion:.4f}, not the logged "
+                                     f"{row['completion']:.4f}: another checkpoint or code than the one that taught")
+                ids = [[int(i) for i in vocab.encode(t)] for t in texts]
+                metas.append({
+                    "episode": episode, "source": row["source"], "run_dir": row["run_dir"], "checkpoint": row["checkpoint"],
+                    "checkpoint_round": row["checkpoint_round"], "greedy": row["greedy"], "task_id": row["task_id"],
+                    "split": row["split"], "attempt_index": row["attempt"], "seed": row["seed"],
+                    "completion": row["completion"], "success": row["success"],
+                    "solved_at": -1 if row["solved_at"] is None else row["solved_at"], "undone": row["undone"],
+                    "hint_shown": row["hint_shown"], "started_at": row["started_at"].isoformat(),
+                    "seconds": row["seconds"], "instruction": a.instruction,
+                    "instruction_ids": [int(i) for i in a.instruction_ids],
+                    "corrections_before": texts, "corrections_before_ids": ids,
+                    "typed_before": row["typed"], "unknown_words": list(row["unknown_words"]),
+                })
+                json.dumps(metas[-1])  # plain values only
+                yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a.task_id), int(a.seed), a.instruction,
+                               a.instruction_ids, np.asarray(a.observations), np.asarray(a.actions),
+                               np.asarray(a.expert_actions), what)
+
+    storage.update_episodes(episodes())
+    _finish(storage, MinariDataset, data_path, dataset_id, metas,
+            "a person's language corrections of a GPL policy (gpl-dist teach/serve)",
+            f"gpl-dist teaching logs of {log_dir.resolve()} ({domain.name}): each attempt a person asked for an "
+            "episode, replayed from its seed; see gpl_dist/app/export.py")
     return dataset_id, len(metas)
 
 
@@ -125,10 +272,12 @@ def _minari_version() -> str:
     return str(minari.__version__)
 
 
-def _episode(EpisodeBuffer, domain, a: dict, stored: np.ndarray, actions: np.ndarray, labels: np.ndarray,
-             by_key: dict, metas: list) -> Any:
-    env = domain.make_env(int(a["task_id"]))
-    first, info = env.reset(seed=int(a["seed"]))
+def _episode(EpisodeBuffer, domain, index: int, task_id: int, seed: int, instruction: str, instruction_ids,
+             stored: np.ndarray, actions: np.ndarray, labels: np.ndarray, what: str) -> Any:
+    """One attempt as a Minari episode: replayed from ``seed`` through ``actions`` (rewards, the final
+    state), checked against the ``stored`` states it acted in."""
+    env = domain.make_env(task_id)
+    first, info = env.reset(seed=seed)
     observations, rewards, completion, success = [np.asarray(first)], [], [info["completion"]], [info["success"]]
     for act in actions.tolist():
         o, reward, _, _, info = env.step(act)
@@ -138,26 +287,12 @@ def _episode(EpisodeBuffer, domain, a: dict, stored: np.ndarray, actions: np.nda
         success.append(bool(info["success"]))
     replayed = np.stack(observations)
     if len(actions) != len(stored) or not np.array_equal(replayed[:-1], stored):
-        raise UsageError(f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']}) does not replay to its "
-                         "stored states: its final state cannot be recovered")
+        raise UsageError(f"{what} does not replay to its stored states: its final state cannot be recovered")
     n = len(observations)
-    before = [by_key[k] for k in a["context_keys"]]
-    metas.append({
-        "task_id": a["task_id"], "split": a["split"], "attempt_index": a["attempt_index"], "round": a["round"],
-        "unit": a["unit"], "attempt_key": a["attempt_key"], "seed": a["seed"], "policy_version": a["policy_version"],
-        "worker_id": a["worker_id"], "completion": a["completion"], "success": a["success"],
-        "reward_sum": a.get("reward_sum"),
-        "instruction": a["instruction"], "instruction_ids": list(a["instruction_ids"]),
-        "corrections_before": [b["correction"] for b in before],
-        "corrections_before_ids": [list(b["correction_ids"]) for b in before],
-        "correction_after": a["correction"], "correction_after_ids": list(a["correction_ids"]),
-        "correction_after_kind": a["correction_kind"],
-    })
-    json.dumps(metas[-1])  # plain values only
     return EpisodeBuffer(
-        id=len(metas) - 1, seed=int(a["seed"]),
-        observations={"observation": replayed, "instruction": [a["instruction"]] * n,
-                      "instruction_ids": np.tile(np.asarray(a["instruction_ids"], np.int64), (n, 1))},
+        id=index, seed=seed,
+        observations={"observation": replayed, "instruction": [instruction] * n,
+                      "instruction_ids": np.tile(np.asarray(instruction_ids, np.int64), (n, 1))},
         actions=actions.astype(np.int64), rewards=rewards, terminations=[False] * len(rewards),
         truncations=[False] * (len(rewards) - 1) + [True],
         # lists, not 1-D arrays: minari 0.5.4 cannot read back a 1-D array info (an empty shape)
