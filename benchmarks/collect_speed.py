@@ -95,8 +95,8 @@ def gpl_dist_rate(num_workers: int, tasks: tuple[int, ...], corrections: int, ta
     from gpl_dist.models.build import state_dict_to_numpy
     from learner.driver import make_units
     from storage import commit_round
-    from workers.ray_pool import RayCollector
-    from workers.rollout import RolloutSettings
+    from workers.ray_collector import RayCollector
+    from workers.worker import RolloutSettings
 
     root = tempfile.mkdtemp(prefix="gpl-collect-bench-")
     model_cfg, model = shipped_model(domain)

@@ -54,7 +54,7 @@ def fill_buffer(cfg, root: str, num_tuples: int, tasks_per_unit: int = 64) -> No
     from gpl_dist.records import WorkUnit
     from gpl_dist.splits import split_tasks
     from storage import ShardWriter, commit_round
-    from workers.rollout import RolloutSettings, RolloutWorker
+    from workers.worker import RolloutSettings, RolloutWorker
 
     d = get_domain(cfg.env.domain)
     worker = RolloutWorker(d, RolloutSettings.of_run(cfg), ShardWriter(root, "bench"), "bench-0")

@@ -193,7 +193,7 @@ class CorrectionOracle(Protocol):
 @runtime_checkable
 class Policy(Protocol):
     """Acts in many envs at once: the conditioning is encoded once per attempt, then one batched
-    forward per step (``workers.loop.Rollout`` drives it; ``GPLPolicy`` and ``MIVOAPolicy`` implement it)."""
+    forward per step (``workers.rollout.Rollout`` drives it; ``GPLPolicy`` and ``MIVOAPolicy`` implement it)."""
 
     vocabulary: Vocabulary
     """The words the network reads (``DomainSpec.vocabulary_for``); text is encoded with it."""

@@ -55,8 +55,8 @@ from storage.fs import resolve
 from storage.lease import Lease
 from storage.manifest import buffer_run_id, mark_buffer
 from storage.verify import verify_buffer
-from workers.pool import SerialCollector, UnitResult
-from workers.rollout import RolloutSettings
+from workers.collector import SerialCollector, UnitResult
+from workers.worker import RolloutSettings
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +191,7 @@ def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
     if not address or cfg.training.device != "cuda":  # a cluster's GPUs are counted once joined
         resolve_device(cfg.training.device)
     if address:
-        from workers.ray_pool import check_reachable  # Ray is imported only where a run uses it
+        from workers.ray_collector import check_reachable  # Ray is imported only where a run uses it
 
         check_reachable(address)
     tasks = training_tasks(cfg)
@@ -400,7 +400,7 @@ def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id
                     address: str | None):
     if serial:
         return SerialCollector(cfg.env.domain, settings, root, run_id)
-    from workers.ray_pool import RayCollector  # Ray is imported only where a run uses it
+    from workers.ray_collector import RayCollector  # Ray is imported only where a run uses it
     return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
                         cfg.collection.max_unit_retries, cfg.collection.unit_timeout_s)
 

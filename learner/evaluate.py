@@ -36,7 +36,7 @@ from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks
 from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
 from learner.identity import read_identity, resolve_identity
-from workers.loop import Rollout
+from workers.rollout import Rollout
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ Two steps, run by ``scripts/train_relocation_expert.py`` (``dagger``, then ``ppo
 deterministic for given settings and torch thread count.
 
 Step 1 steps the envs itself (it labels every state with the scripted expert and feeds privileged
-inputs, which the rollout loop of collection, ``workers.loop``, does not); step 2 is SB3's loop.
+inputs, which the rollout loop of collection, ``workers.rollout``, does not); step 2 is SB3's loop.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ def failure_modes(args) -> None:
     from gpl_dist.domains import get_domain
     from gpl_dist.models.build import build_model_from_config
     from learner.checkpoint import load_checkpoint
-    from workers.loop import Rollout
+    from workers.rollout import Rollout
 
     ckpt = load_checkpoint(f"{args.run_dir}/checkpoints")
     cfg = config_from_dict(ckpt.config, f"{args.run_dir}/config.yaml")

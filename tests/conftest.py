@@ -13,7 +13,7 @@ def ray_cluster():
     """A local Ray cluster shared by every test that needs one (started once: it takes seconds)."""
     import ray
 
-    from workers.ray_pool import init_ray
+    from workers.ray_collector import init_ray
 
     if ray.is_initialized():
         yield ray

@@ -78,8 +78,8 @@ def main(mode: str, work: Path) -> None:
     from gpl_dist.config import config_from_dict
     from gpl_dist.domains import get_domain
     from learner.driver import buffer_root, run_training
-    from workers.ray_pool import RayCollector
-    from workers.rollout import RolloutSettings
+    from workers.ray_collector import RayCollector
+    from workers.worker import RolloutSettings
 
     temp_dir = os.path.join(os.environ["RAY_TMPDIR"], "ray")  # where Ray itself looks (ray_current_cluster)
     os.makedirs(temp_dir, exist_ok=True)

@@ -23,9 +23,9 @@ from learner.remote import RemoteLearner
 from learner.trainer import Learner
 from storage.reader import BufferReader
 from storage.writer import ShardWriter
-from workers.pool import SerialCollector
-from workers.ray_pool import RayCollector
-from workers.rollout import RolloutWorker
+from workers.collector import SerialCollector
+from workers.ray_collector import RayCollector
+from workers.worker import RolloutWorker
 
 
 def task_envs(a: MultiRoomEnv, b: RelocationEnv) -> tuple[roles.TaskEnv, roles.TaskEnv]:

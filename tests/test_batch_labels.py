@@ -28,7 +28,7 @@ from gpl_dist.experts.relocation_learned import (
 from gpl_dist.models.build import build_model_from_config
 from gpl_dist.roles import BatchExpert, Expert
 from gpl_dist.splits import split_tasks
-from workers.loop import Rollout
+from workers.rollout import Rollout
 
 ROOT_CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 RECORD_ARRAYS = ("observations", "actions", "expert_actions", "expert_probs", "instruction_ids", "correction_ids")

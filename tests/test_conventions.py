@@ -146,7 +146,7 @@ def test_eval_with_heldout_phrasings_on_a_run_trained_without_paraphrases_says_s
 @pytest.mark.ray
 def test_a_local_ray_cluster_starts_without_the_token_authentication_warning():
     tmp_path = Path(tempfile.mkdtemp(prefix="ray-", dir="/tmp"))  # Ray's socket paths must stay short
-    code = ("import ray\nfrom workers.ray_pool import init_ray\n"
+    code = ("import ray\nfrom workers.ray_collector import init_ray\n"
             f"assert init_ray(None, 1, temp_dir={str(tmp_path)!r}, object_store_memory=80 * 2**20)\n"
             "import os; print('mode', os.environ['RAY_AUTH_MODE'])\nray.shutdown()\n")
     env = quiet_env()

@@ -193,7 +193,7 @@ def test_node_removed_mid_round_its_units_finish_elsewhere(tmp_path):
 def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch, caplog):
     """A task whose env cannot be built and one whose env raises mid-attempt (serial mode, so an
     in-process monkeypatch of the domain registry reaches the worker)."""
-    import workers.pool
+    import workers.collector
     from gpl_dist.config import config_from_dict
     from learner.driver import run_training, training_tasks
     from storage import load_manifest
@@ -201,7 +201,7 @@ def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch
     cfg = config_from_dict(yaml.safe_load(TINY_YAML))
     tasks = training_tasks(cfg)
     bad_env, bad_step = tasks[1], tasks[4]
-    real_get_domain = workers.pool.get_domain
+    real_get_domain = workers.collector.get_domain
 
     def broken_get_domain(name):
         domain = real_get_domain(name)
@@ -225,7 +225,7 @@ def test_broken_tasks_are_reported_and_do_not_stop_the_run(tmp_path, monkeypatch
 
         return dataclasses.replace(domain, make_env=make_env)
 
-    monkeypatch.setattr(workers.pool, "get_domain", broken_get_domain)
+    monkeypatch.setattr(workers.collector, "get_domain", broken_get_domain)
     with caplog.at_level(logging.ERROR):
         result = run_training(cfg, tmp_path / "run", serial=True, progress=False)
     assert [m.round_index for m in result.history] == [0, 1]
@@ -273,8 +273,8 @@ def test_a_failed_unit_names_its_root_cause_without_ray_decoration(tmp_path, ray
     exception's type and message, with no ANSI colour codes and no Ray traceback."""
     from gpl_dist.config import config_from_dict
     from learner.driver import make_units, training_tasks
-    from workers.ray_pool import RayCollector, RoundFailed
-    from workers.rollout import RolloutSettings
+    from workers.ray_collector import RayCollector, RoundFailed
+    from workers.worker import RolloutSettings
 
     cfg = config_from_dict(yaml.safe_load(TINY_YAML))
     root = tmp_path / "buffer"

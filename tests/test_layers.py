@@ -24,9 +24,9 @@ def test_the_core_contract_names_every_module_of_gpl_dist_but_the_app_layer_and_
 
 
 def test_ray_is_allowed_only_in_the_named_wiring_modules_and_those_modules_exist():
-    ray = _contracts()["Ray only in the wiring: the Ray pool, the remote learners, Ray Train, the suite's two Ray runners"]
+    ray = _contracts()["Ray only in the wiring: the Ray collector, the remote learners, Ray Train, the suite's two Ray runners"]
     wiring = {rule.split(" -> ")[0] for rule in ray["ignore_imports"]}
-    assert wiring == {"workers.ray_pool", "learner.remote", "learner.ray_train", "gpl_dist.app.suite.cluster",
+    assert wiring == {"workers.ray_collector", "learner.remote", "learner.ray_train", "gpl_dist.app.suite.cluster",
                       "gpl_dist.app.suite.rl_cluster"}
     for module in wiring:
         assert (ROOT / (module.replace(".", "/") + ".py")).is_file()

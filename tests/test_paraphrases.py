@@ -11,7 +11,7 @@ from gpl_dist.domains import get_domain
 from gpl_dist.language import split_words
 from gpl_dist.models.build import build_model, state_dict_to_numpy
 from learner.evaluate import meta_test_rollout
-from workers.rollout import RolloutWorker
+from workers.worker import RolloutWorker
 
 
 def _collect(domain_name: str, paraphrases: bool, seed: int = 3):

@@ -17,7 +17,7 @@ from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import LearnedRelocationExpert, action_probs, load_weights, policy_inputs
 from gpl_dist.splits import split_tasks
 from tests.test_rollout import worker_settings
-from workers.rollout import RolloutWorker
+from workers.worker import RolloutWorker
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -13,8 +13,8 @@ from gpl_dist.experts.relocation_learned import LearnedRelocationExpert
 from gpl_dist.models.build import build_model
 from learner.trainer import Learner
 from storage import BufferReader, ShardWriter
-from workers.pool import SerialCollector
-from workers.rollout import RolloutSettings, RolloutWorker
+from workers.collector import SerialCollector
+from workers.worker import RolloutSettings, RolloutWorker
 
 
 def test_every_implementation_is_its_role(tmp_path):

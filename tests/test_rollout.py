@@ -7,7 +7,7 @@ from gpl_dist.config import CollectionConfig, EnvConfig, ModelConfig
 from gpl_dist.domains import get_domain
 from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import build_model, build_model_from_config, state_dict_to_numpy
-from workers.rollout import RolloutSettings, RolloutWorker
+from workers.worker import RolloutSettings, RolloutWorker
 
 TASKS = (0, 5, 17, 400)
 

@@ -41,7 +41,7 @@ from gpl_dist.roles import DomainSpec
 from gpl_dist.seeding import correction_rng
 from learner.checkpoint import LATEST
 from learner.evaluate import load_trained_policy, meta_test_rollout
-from workers.loop import Rollout
+from workers.rollout import Rollout
 
 #: Kind recorded in ``Attempt.correction_kind`` for a correction given as text through this API.
 GIVEN_KIND = "person"

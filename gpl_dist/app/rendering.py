@@ -141,7 +141,7 @@ def policy_attempt_frames(run_dir: str | Path, task_id: int, num_attempts: int, 
     """Frames of a trained policy's successive attempts at ``task_id``, as at meta-test.
 
     The run's policy makes up to ``num_attempts`` attempts, each after the oracle's correction of
-    the one before (the run's own conditioning and oracle, ``workers.loop.Rollout``); each attempt
+    the one before (the run's own conditioning and oracle, ``workers.rollout.Rollout``); each attempt
     is then replayed from its reset seed and actions to draw it. Every frame carries a caption:
     the attempt, the correction that led to it (the instruction for the first), and the attempt's
     completion. ``frame_stride`` keeps every n-th step (default: about 40 frames an attempt). A

@@ -4,7 +4,7 @@ in the terminal, ``gpl-dist serve`` in a browser).
 A teaching episode is meta-test (Algorithm 2) with a person in the oracle's place: attempt 0
 follows the instruction alone; after each attempt the person types a correction, and the next
 attempt is conditioned on every earlier (attempt, correction) pair. It runs through the one
-rollout loop (``workers.loop.Rollout``) with the person's corrections as the correction source.
+rollout loop (``workers.rollout.Rollout``) with the person's corrections as the correction source.
 
 **Seeded replay.** An episode is a function of (run, checkpoint, task, seed, corrections): attempt
 ``k`` is made by rolling attempts ``0..k`` out again with the recorded corrections, so the same

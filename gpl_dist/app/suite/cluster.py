@@ -16,7 +16,7 @@ import ray
 from gpl_dist.app.suite.runs import execute
 from gpl_dist.app.suite.spec import Suite, SuiteRun
 from gpl_dist.errors import SuiteError
-from workers.ray_pool import init_ray
+from workers.ray_collector import init_ray
 
 
 @ray.remote(num_cpus=1, max_retries=0)

@@ -8,7 +8,7 @@ import ray
 
 from gpl_dist.errors import SuiteError
 from learner.rl import run_rl_job
-from workers.ray_pool import init_ray
+from workers.ray_collector import init_ray
 
 
 @ray.remote(num_cpus=1, max_retries=0)

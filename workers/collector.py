@@ -1,7 +1,7 @@
 """Collectors hand a round's work units to rollout workers and gather the shard records.
 
 ``SerialCollector`` runs one ``RolloutWorker`` in this process (``--serial``, tests, debugging);
-``workers.ray_pool.RayCollector`` runs the same worker class as Ray actors. Both return shard
+``workers.ray_collector.RayCollector`` runs the same worker class as Ray actors. Both return shard
 records only; the data itself is in the buffer.
 """
 
@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 
 from gpl_dist.domains import get_domain, load_domain_module
 from gpl_dist.records import WorkUnit
-from workers.rollout import RolloutSettings, RolloutWorker
+from workers.worker import RolloutSettings, RolloutWorker
 
 
 @dataclass(frozen=True)

@@ -37,8 +37,8 @@ from ray.exceptions import RayActorError, RayTaskError
 from gpl_dist.errors import UsageError, UserError
 from gpl_dist.records import WorkUnit
 from gpl_dist.signals import reclaim_sigterm
-from workers.pool import UnitResult, make_worker, run_unit
-from workers.rollout import RolloutSettings
+from workers.collector import UnitResult, make_worker, run_unit
+from workers.worker import RolloutSettings
 
 log = logging.getLogger(__name__)
 
