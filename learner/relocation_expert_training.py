@@ -38,6 +38,7 @@ from gpl_dist.envs.relocation_core import EPISODE_STEPS, SUCCESS_RADIUS, make_ta
 from gpl_dist.experts.relocation import RelocationExpert
 from gpl_dist.experts.relocation_learned import NUM_LAYERS
 from gpl_dist.splits import split_tasks
+from learner.ppo import PPOSettings, make_sb3_ppo
 
 #: Reset seed of test task k is ``TEST_SEED + k``, for the expert and the policy alike.
 TEST_SEED = 99_999
@@ -216,43 +217,36 @@ class PrivilegedTasks(gymnasium.Env):
                 info)
 
 
+#: Step 2's PPO, as SB3 runs it: 100 envs, one episode of each per iteration, the policy's Adam at
+#: 5e-5 and the value layers' (2 x 256) at 1e-3, clip 0.1, 4 epochs of minibatches of 2048 cut
+#: short once the KL to the rollout policy passes 0.02 (SB3 stops at 1.5 x ``target_kl``), no
+#: gradient clipping, no entropy bonus, the value loss at SB3's 0.5; one extractor (the frozen
+#: input normalisation) for both.
+EXPERT_PPO = PPOSettings(n_envs=100, n_steps=0, learning_rate=5e-5, value_learning_rate=1e-3, batch_size=2048,
+                         n_epochs=4, gamma=0.99, gae_lambda=0.95, clip_range=0.1, ent_coef=0.0, vf_coef=0.5,
+                         target_kl=0.02 / 1.5, max_grad_norm=float("inf"), value_hidden=256, value_layers=2,
+                         stop_when_solved=False, share_trunk=True)
+
+
 @dataclass(frozen=True)
-class PPOSettings:
-    """Step 2: stable-baselines3's PPO from step 1's policy.
+class FinetuneSettings:
+    """Step 2: stable-baselines3's PPO (``ppo``) from step 1's policy, and the stage's own knobs."""
 
-    Attributes:
-        iterations: PPO iterations (each one episode of every env).
-        envs: environments stepped together (each draws a training task per episode).
-        lr: the policy's Adam learning rate.
-        critic_lr: the value layers' Adam learning rate.
-        clip: PPO's ratio clip.
-        epochs: epochs over an iteration's states (cut short once the KL passes ``max_kl``).
-        minibatch: states per step.
-        warmup: iterations that train only the value layers.
-        eval_every: iterations between test completions (and exports).
-        test_tasks: first N test tasks for the printed completion.
-        gamma: discount.
-        gae_lambda: GAE's lambda.
-        return_scale: rewards are divided by this (``PrivilegedTasks``).
-        max_kl: SB3's ``target_kl``: the KL to the rollout policy that ends an iteration's epochs.
-        seed: SB3's seed (the value layers' weights, minibatches, sampled actions) and the tasks'.
-    """
-
+    ppo: PPOSettings = EXPERT_PPO
+    """The PPO (``learner.ppo``): ``n_envs`` envs, each drawing a training task per episode; ``n_steps``
+    one episode (0 or ``EPISODE_STEPS``); ``value_learning_rate`` the value layers' own rate."""
     iterations: int = 600
-    envs: int = 100
-    lr: float = 5e-5
-    critic_lr: float = 1e-3
-    clip: float = 0.1
-    epochs: int = 4
-    minibatch: int = 2048
+    """PPO iterations (each one episode of every env)."""
     warmup: int = 8
+    """Iterations that train only the value layers."""
     eval_every: int = 40
+    """Iterations between test completions (and exports)."""
     test_tasks: int = 100
-    gamma: float = 0.99
-    gae_lambda: float = 0.95
+    """First N test tasks for the printed completion."""
     return_scale: float = 20.0
-    max_kl: float = 0.02
+    """Rewards are divided by this (``PrivilegedTasks``)."""
     seed: int = 0
+    """SB3's seed (the value layers' weights, minibatches, sampled actions) and the tasks'."""
 
 
 class FrozenNorm(nn.Module):
@@ -274,9 +268,8 @@ class FrozenNorm(nn.Module):
         return self.norm(obs)
 
 
-def _sb3_classes():
-    """``(features extractor class, PPO class)`` under SB3's base classes."""
-    from stable_baselines3 import PPO
+def _extractor_class():
+    """``FrozenNorm`` under SB3's ``BaseFeaturesExtractor``."""
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
     class Extractor(BaseFeaturesExtractor):
@@ -287,54 +280,38 @@ def _sb3_classes():
         def forward(self, obs: torch.Tensor) -> torch.Tensor:
             return self.inner(obs)
 
-    class TwoRatePPO(PPO):
-        """SB3's PPO whose value layers keep their own learning rate."""
-
-        critic_lr = 1e-3
-
-        def _update_learning_rate(self, optimizers) -> None:
-            super()._update_learning_rate(optimizers)
-            for group in self.policy.optimizer.param_groups:
-                if group.get("critic"):
-                    group["lr"] = self.critic_lr
-
-    return Extractor, TwoRatePPO
+    return Extractor
 
 
 def _linears(module: nn.Module) -> list[nn.Linear]:
     return [m for m in module.modules() if isinstance(m, nn.Linear)]
 
 
-def sb3_ppo(policy: nn.Sequential, s: PPOSettings):
-    """SB3 PPO over ``PrivilegedTasks`` whose policy is ``policy`` (``build_policy``): its input
-    BatchNorm as the frozen features extractor, its hidden layers and output layer copied into
-    SB3's policy network and action layer; fresh value layers (2 x 256, ReLU) with their own rate."""
+def sb3_ppo(policy: nn.Sequential, s: FinetuneSettings):
+    """SB3 PPO (``learner.ppo``) over ``PrivilegedTasks`` whose policy is ``policy`` (``build_policy``):
+    its input BatchNorm as the frozen features extractor, its hidden layers and output layer copied
+    into SB3's policy network and action layer; fresh value layers (``s.ppo.value_arch()``, ReLU)
+    with their own rate (``s.ppo.value_learning_rate``)."""
     from stable_baselines3.common.env_util import make_vec_env
 
-    extractor, ppo_class = _sb3_classes()
+    p = s.ppo
+    if p.n_steps not in (0, EPISODE_STEPS) or p.stop_when_solved:
+        raise ValueError(f"step 2's iterations are one episode of every env (n_steps 0 or {EPISODE_STEPS}, got "
+                         f"{p.n_steps}) and it has no stop once solved (stop_when_solved {p.stop_when_solved})")
     train = split_tasks("relocation", "train")
-    env = make_vec_env(PrivilegedTasks, n_envs=s.envs, seed=s.seed,
+    env = make_vec_env(PrivilegedTasks, n_envs=p.n_envs, seed=s.seed,
                        env_kwargs=dict(tasks=train, seed=s.seed, reward_scale=s.return_scale))
     for k, e in enumerate(env.envs):  # type: ignore[attr-defined]
         e.unwrapped.rng = np.random.default_rng([s.seed, k])  # each env its own task stream
     hidden = [m.out_features for m in _linears(policy)[:-1]]
-    model = ppo_class("MlpPolicy", env, learning_rate=s.lr, n_steps=EPISODE_STEPS, batch_size=s.minibatch,
-                      n_epochs=s.epochs, gamma=s.gamma, gae_lambda=s.gae_lambda, clip_range=s.clip,
-                      target_kl=s.max_kl / 1.5,  # SB3 stops once the KL passes 1.5 x target_kl
-                      max_grad_norm=float("inf"),  # no gradient clipping, as before SB3
-                      seed=s.seed, device="cpu", verbose=0,
-                      policy_kwargs=dict(features_extractor_class=extractor, features_extractor_kwargs=dict(norm=policy[0]),
-                                         net_arch=dict(pi=hidden, vf=[256, 256]), activation_fn=nn.ReLU, ortho_init=False))
-    model.critic_lr = s.critic_lr
+    model = make_sb3_ppo(env, p, episode_steps=EPISODE_STEPS, seed=s.seed, pi=hidden,
+                         features_extractor_class=_extractor_class(), features_extractor_kwargs=dict(norm=policy[0]),
+                         activation_fn=nn.ReLU, ortho_init=False)
     sb3 = model.policy
     with torch.no_grad():
         for ours, theirs in zip(_linears(policy), [*_linears(sb3.mlp_extractor.policy_net), sb3.action_net]):
             theirs.weight.copy_(ours.weight)
             theirs.bias.copy_(ours.bias)
-    pi = [*sb3.mlp_extractor.policy_net.parameters(), *sb3.action_net.parameters()]
-    vf = [*sb3.mlp_extractor.value_net.parameters(), *sb3.value_net.parameters()]
-    groups: list[dict[str, Any]] = [{"params": pi}, {"params": vf, "critic": True, "lr": s.critic_lr}]
-    sb3.optimizer = torch.optim.Adam(groups, lr=s.lr, eps=1e-5)
     return model
 
 
@@ -349,10 +326,35 @@ def policy_of(model, like: nn.Sequential) -> nn.Sequential:
     return out
 
 
-#: Layout version of step 2's checkpoint (``save_ppo_checkpoint``).
-CHECKPOINT_FORMAT = 1
+#: Layout version of step 2's checkpoint (``save_ppo_checkpoint``). 2: the settings by
+#: ``FinetuneSettings``' names (``ppo.<PPOSettings field>``); 1 (read too): the former flat names.
+CHECKPOINT_FORMAT = 2
 #: Settings a resumed run may change: ``iterations`` extends or shortens it; the other two only print.
 _FREE_ON_RESUME = ("iterations", "eval_every", "test_tasks")
+#: Format 1's settings by their names now (its ``max_kl`` was 1.5 x SB3's ``target_kl``) ...
+_FORMAT_1_NAMES = {"envs": "ppo.n_envs", "lr": "ppo.learning_rate", "critic_lr": "ppo.value_learning_rate",
+                   "clip": "ppo.clip_range", "epochs": "ppo.n_epochs", "minibatch": "ppo.batch_size",
+                   "gamma": "ppo.gamma", "gae_lambda": "ppo.gae_lambda", "max_kl": "ppo.target_kl",
+                   "warmup": "warmup", "return_scale": "return_scale", "seed": "seed"}
+#: ... and the PPO settings format 1 did not store, as its code fixed them.
+_FORMAT_1_FIXED = {"ppo.n_steps": EPISODE_STEPS, "ppo.ent_coef": 0.0, "ppo.vf_coef": 0.5, "ppo.max_grad_norm": float("inf"),
+                   "ppo.value_hidden": 256, "ppo.value_layers": 2, "ppo.stop_when_solved": False, "ppo.share_trunk": True}
+
+
+def _checked_settings(s: FinetuneSettings) -> dict[str, Any]:
+    """The settings a resumed run must keep, by name (``ppo.<field>`` for the PPO's; ``n_steps`` 0 as
+    the episode it means)."""
+    ppo = {f"ppo.{k}": v for k, v in asdict(s.ppo).items()}
+    ppo["ppo.n_steps"] = s.ppo.n_steps or EPISODE_STEPS
+    return {**ppo, **{k: v for k, v in asdict(s).items() if k != "ppo" and k not in _FREE_ON_RESUME}}
+
+
+def _format_1_settings(old: Mapping[str, Any]) -> dict[str, Any]:
+    """A format-1 checkpoint's settings by ``_checked_settings``' names."""
+    out = {**_FORMAT_1_FIXED, **{_FORMAT_1_NAMES.get(k, k): v for k, v in old.items()}}
+    if "ppo.target_kl" in out:
+        out["ppo.target_kl"] = out["ppo.target_kl"] / 1.5  # as sb3_ppo gave SB3 then
+    return out
 
 
 def fingerprint(policy: nn.Module) -> str:
@@ -364,7 +366,7 @@ def fingerprint(policy: nn.Module) -> str:
     return h.hexdigest()
 
 
-def save_ppo_checkpoint(path: str, model, s: PPOSettings, init: str, iteration: int) -> None:
+def save_ppo_checkpoint(path: str, model, s: FinetuneSettings, init: str, iteration: int) -> None:
     """Write what step 2 needs to go on after ``iteration`` as if never stopped: SB3's policy
     (value layers too) and Adam state, the torch and numpy global generators (SB3 samples actions
     and shuffles minibatches with them), each env's task generator before its latest reset, the
@@ -372,7 +374,7 @@ def save_ppo_checkpoint(path: str, model, s: PPOSettings, init: str, iteration: 
     Atomic (a temporary file renamed); read with ``torch.load(weights_only=True)``."""
     name, keys, pos, has_gauss, cached = np.random.get_state(legacy=True)
     state = {"format": CHECKPOINT_FORMAT, "init": init, "iteration": iteration,
-             "settings": {k: v for k, v in asdict(s).items() if k not in _FREE_ON_RESUME},
+             "settings": _checked_settings(s),
              "num_timesteps": int(model.num_timesteps), "policy": model.policy.state_dict(),
              "optimizer": model.policy.optimizer.state_dict(), "torch_rng": torch.get_rng_state(),
              "numpy_rng": {"name": name, "keys": torch.from_numpy(np.asarray(keys, np.int64)), "pos": int(pos),
@@ -383,17 +385,18 @@ def save_ppo_checkpoint(path: str, model, s: PPOSettings, init: str, iteration: 
     os.replace(tmp, path)
 
 
-def load_ppo_checkpoint(path: str, model, s: PPOSettings, init: str) -> int:
-    """Restore ``save_ppo_checkpoint``'s state into a model fresh from ``sb3_ppo(policy, s)``;
-    returns the iterations it had done. Raises ``ValueError`` naming what differs when the
-    checkpoint is of another layout, starting policy or settings."""
+def load_ppo_checkpoint(path: str, model, s: FinetuneSettings, init: str) -> int:
+    """Restore ``save_ppo_checkpoint``'s state (format 2, or 1 with its former setting names) into a
+    model fresh from ``sb3_ppo(policy, s)``; returns the iterations it had done. Raises
+    ``ValueError`` naming what differs when the checkpoint is of another layout, starting policy or
+    settings."""
     state = torch.load(path, weights_only=True)
-    if state.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: checkpoint format {state.get('format')!r}; this code reads {CHECKPOINT_FORMAT}")
+    if state.get("format") not in (1, CHECKPOINT_FORMAT):
+        raise ValueError(f"{path}: checkpoint format {state.get('format')!r}; this code reads 1 and {CHECKPOINT_FORMAT}")
     if state["init"] != init:
         raise ValueError(f"{path} started from another policy than --init")
-    now = {k: v for k, v in asdict(s).items() if k not in _FREE_ON_RESUME}
-    differ = [f"{k} {state['settings'].get(k)!r} (now {v!r})" for k, v in now.items() if state["settings"].get(k) != v]
+    was = _format_1_settings(state["settings"]) if state["format"] == 1 else state["settings"]
+    differ = [f"{k} {was.get(k)!r} (now {v!r})" for k, v in _checked_settings(s).items() if was.get(k) != v]
     if differ:
         raise ValueError(f"{path} was made with other settings: {', '.join(differ)}")
     model.policy.load_state_dict(state["policy"])
@@ -407,7 +410,7 @@ def load_ppo_checkpoint(path: str, model, s: PPOSettings, init: str) -> int:
     return int(state["iteration"])
 
 
-def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], None] = print,
+def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str], None] = print,
                  on_eval: Callable[[nn.Module], None] | None = None, checkpoint: str | None = None,
                  resume: bool = False) -> nn.Sequential:
     """Step 2 (module docstring): SB3's PPO from ``policy``; returns the fine-tuned policy (a new
@@ -477,7 +480,7 @@ def ppo_finetune(policy: nn.Sequential, s: PPOSettings, log: Callable[[str], Non
 
     progress = Progress()
     if done < s.iterations:
-        model.learn(total_timesteps=(s.iterations - done) * s.envs * EPISODE_STEPS, callback=progress,
+        model.learn(total_timesteps=(s.iterations - done) * s.ppo.n_envs * EPISODE_STEPS, callback=progress,
                     reset_num_timesteps=False)
     progress.report()  # the last iteration's line
     tuned = policy_of(model, policy)

@@ -13,10 +13,11 @@ copy of that trunk (the authors' value network was separate from the policy).
 Both see the env's observation (multi-room: the 7x7 categorical window through the GPL grid
 encoder, a small CNN) and its dense reward (the paper's: multi-room -0.01 x distance to the next
 subgoal and +100 per newly completed subgoal; relocation -(gripper-to-block + 5 x block-to-target)).
-PPO runs the authors' expert settings (``PPOSettings``), updates stopping once every copy of the
-task solved it, as theirs did. Every training trajectory's final completion is recorded, in order
-(``RLCurve``), until ``trajectories`` have been run. Everything is a function of the job's seed (SB3's, the env's resets
-and torch's); one torch thread per job.
+PPO (``learner.ppo``, the project's one) runs the authors' expert settings (``PPOSettings``'
+defaults), updates stopping once every copy of the task solved it, as theirs did. Every training
+trajectory's final completion is recorded, in order (``RLCurve``), until ``trajectories`` have been
+run. Everything is a function of the job's seed (SB3's, the env's resets and torch's); one torch
+thread per job.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,48 +41,10 @@ from gpl_dist.models.gpl import GPLPolicy
 from gpl_dist.models.layers import Conditioning
 from gpl_dist.roles import DomainSpec
 from gpl_dist.seeding import rl_seed
+from learner.ppo import PPOSettings, make_sb3_ppo
 
 #: The RL methods: PPO from a fresh network, and PPO from a DAgger-pretrained instruction-only one.
 RL_METHODS = ("rl-scratch", "rl-finetune")
-
-
-@dataclass(frozen=True)
-class PPOSettings:
-    """stable-baselines3 PPO's settings for every RL job: the authors' expert PPO (their repository's
-    ``ppo.py``, ``../shared/reference/original-code-facts.md`` section 4), which the paper says its RL
-    baselines use: 20 copies of the task stepped together, one episode of each per update,
-    Monte-Carlo returns, one Adam at 1e-3 for ``policy + value MSE - 0.001 entropy``."""
-
-    n_envs: int = 20
-    """Copies of the task stepped together (one batched policy forward for all of them)."""
-    n_steps: int = 0
-    """Env steps per copy between updates; 0: one episode (the domain's ``steps_per_attempt``)."""
-    learning_rate: float = 1e-3
-    """Adam learning rate (policy and value share it)."""
-    batch_size: int = 64
-    """Minibatch size of an update (the authors: 64 in multi-room, 128 in relocation)."""
-    n_epochs: int = 10
-    """Passes over each rollout."""
-    gamma: float = 0.99
-    """Discount factor."""
-    gae_lambda: float = 1.0
-    """GAE's lambda (1: Monte-Carlo returns minus the value, as the authors)."""
-    clip_range: float = 0.2
-    """PPO's ratio clip."""
-    ent_coef: float = 0.001
-    """Entropy bonus."""
-    vf_coef: float = 1.0
-    """Weight of the value loss."""
-    value_hidden: int = 64
-    """Width of the value head's hidden layer (the policy head reads the network's features directly)."""
-    stop_when_solved: bool = True
-    """Stop updating once every copy solved the task in one update's episodes, as the authors' expert
-    PPO stopped; later trajectories are sampled from that policy. (Updating on: once all copies
-    succeed the advantages are near-equal, normalising them amplifies noise, and the policy can
-    collapse: measured on multi-room task 69, 0.99 completion to 0.0 within 100 trajectories.)"""
-    share_trunk: bool = False
-    """Whether the value head reads the policy's trunk. No (the authors' separate value network): the
-    value has its own copy of the trunk, so returns in the hundreds do not pull the policy's features."""
 
 
 @dataclass(frozen=True)
@@ -122,7 +84,8 @@ class RLCurve:
         env_steps: env steps taken (the budget's trajectories, whole, and the rest of the last round).
         seconds: wall time.
         solved_at: trajectories run when updates stopped (``PPOSettings.stop_when_solved``), else None.
-        settings: the ``PPOSettings`` it ran with, as a dict (a result made with others is redone).
+        settings: the ``PPOSettings`` it ran with, as a dict (a result made with others is redone;
+            ``made_with`` compares).
     """
 
     job: RLJob
@@ -144,6 +107,20 @@ class RLCurve:
         return cls(RLJob(**data["job"]), tuple(float(x) for x in data["completion"]),
                    tuple(bool(x) for x in data["success"]), int(data["env_steps"]), float(data["seconds"]),
                    data.get("solved_at"), data.get("settings"))
+
+
+#: ``PPOSettings`` fields that results written before they existed (before ``learner.ppo``) lack:
+#: every RL job ran with what their defaults are (SB3's own, one learning rate, one value layer).
+_FIELDS_ADDED_LATER = ("value_learning_rate", "target_kl", "max_grad_norm", "value_layers")
+
+
+def made_with(recorded: Any, settings: PPOSettings) -> bool:
+    """Whether a result's recorded settings (``RLCurve.settings``, as read from its JSON) are
+    ``settings``; a field of ``_FIELDS_ADDED_LATER`` that the record lacks counts as its default."""
+    if not isinstance(recorded, dict):
+        return False
+    defaults = dataclasses.asdict(PPOSettings())
+    return {**{k: defaults[k] for k in _FIELDS_ADDED_LATER}, **recorded} == dataclasses.asdict(settings)
 
 
 class TaskFeatures(nn.Module):
@@ -265,20 +242,6 @@ def _fit_batchnorm(network: GPLPolicy, domain: DomainSpec, task_id: int, seed: i
     norms[0].running_var = x.var(0).clamp_min(1e-6)
 
 
-def _stoppable_ppo_class():
-    """SB3's PPO whose updates can be switched off (``updating = False``) while it keeps sampling."""
-    from stable_baselines3 import PPO
-
-    class StoppablePPO(PPO):
-        updating = True
-
-        def train(self) -> None:
-            if self.updating:
-                super().train()
-
-    return StoppablePPO
-
-
 def _returns(env: gymnasium.Env):
     """A factory of ``env`` itself, as SB3's vectorised envs take factories."""
     return lambda: env
@@ -311,20 +274,13 @@ def make_ppo(job: RLJob, settings: PPOSettings = PPOSettings(), weights: dict[st
     if weights is None:
         _fit_batchnorm(network, domain, job.task_id, seed)
     instruction_ids = torch.from_numpy(network.vocabulary.encode(copies[0].unwrapped.instruction))  # type: ignore[attr-defined]
-    policy_kwargs: dict[str, Any] = dict(
-        features_extractor_class=_features_class(copies[0].observation_space),
-        features_extractor_kwargs=dict(network=network, instruction_ids=instruction_ids, obs_shape=domain.obs_shape),
-        net_arch=dict(pi=[], vf=[settings.value_hidden]), normalize_images=False,
-        share_features_extractor=settings.share_trunk,
-        # SB3 re-initialises every layer orthogonally by default: right from scratch, wrong for pretrained weights
-        ortho_init=weights is None)
-    with warnings.catch_warnings():  # an episode's steps need not be a multiple of the minibatch: SB3 warns, we know
-        warnings.filterwarnings("ignore", message=".*mini-batch size.*")
-        ppo = _stoppable_ppo_class()("MlpPolicy", env, learning_rate=settings.learning_rate,
-                    n_steps=settings.n_steps or domain.steps_per_attempt, batch_size=settings.batch_size,
-                    n_epochs=settings.n_epochs, gamma=settings.gamma, gae_lambda=settings.gae_lambda,
-                    clip_range=settings.clip_range, ent_coef=settings.ent_coef, vf_coef=settings.vf_coef,
-                    policy_kwargs=policy_kwargs, seed=seed, device="cpu", verbose=0)
+    ppo = make_sb3_ppo(env, settings, episode_steps=domain.steps_per_attempt, seed=seed, pi=[],
+                       features_extractor_class=_features_class(copies[0].observation_space),
+                       features_extractor_kwargs=dict(network=network, instruction_ids=instruction_ids,
+                                                      obs_shape=domain.obs_shape),
+                       normalize_images=False,
+                       # SB3 re-initialises every layer orthogonally by default: right from scratch, wrong for pretrained weights
+                       ortho_init=weights is None)
     if weights is not None:
         last: nn.Linear = network.head[1]  # type: ignore[assignment]
         action_net: nn.Linear = ppo.policy.action_net  # type: ignore[assignment]
@@ -352,7 +308,7 @@ def budget_callback(log: CompletionRecorder, budget: int, settings: PPOSettings,
         def _on_rollout_end(self) -> None:
             if settings.stop_when_solved and not solved_at and all_copies_solved(log.success, settings.n_envs):
                 solved_at.append(len(log.success))
-                self.model.updating = False  # type: ignore[attr-defined]  # the StoppablePPO of make_ppo
+                self.model.updating = False  # type: ignore[attr-defined]  # learner.ppo's PPO (make_ppo)
 
     return Budget()
 

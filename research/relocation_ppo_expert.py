@@ -28,26 +28,24 @@ from torch import nn
 
 from gpl_dist.envs.relocation_core import EPISODE_STEPS, NUM_TASKS
 from gpl_dist.splits import split_tasks
+from learner.ppo import PPOSettings, make_sb3_ppo
 from learner.rl import CompletionRecorder
 
 NUM_COPIES = 20
 
 
-def authors_settings(seed: int) -> dict:
-    """The authors' per-task PPO as stable-baselines3 arguments: one episode of each of 20 copies
-    per iteration, GAE with lambda 1 (their Monte-Carlo returns, except that SB3 bootstraps the
-    value at the time limit), their networks, one Adam at 1e-3, the value loss at full weight and
-    a small entropy bonus."""
-    return dict(n_steps=EPISODE_STEPS, batch_size=128, n_epochs=10, learning_rate=1e-3, gamma=0.99, gae_lambda=1.0,
-                clip_range=0.2, ent_coef=0.001, vf_coef=1.0, seed=seed, device="cpu", verbose=0,
-                policy_kwargs=dict(net_arch=dict(pi=[32, 32], vf=[64, 64]), activation_fn=nn.Tanh))
+#: The authors' per-task PPO (the project's PPO defaults, ``learner.ppo``): one episode of each of
+#: 20 copies per iteration, GAE with lambda 1 (their Monte-Carlo returns, except that SB3
+#: bootstraps the value at the time limit), one Adam at 1e-3, the value loss at full weight and a
+#: small entropy bonus; their value network (2 x 64, Tanh, with the policy 2 x 32 in ``train_task``)
+#: and minibatches of 128.
+AUTHORS_PPO = PPOSettings(n_envs=NUM_COPIES, batch_size=128, value_hidden=64, value_layers=2, share_trunk=True)
 
 
 def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0) -> dict:
     """SB3 PPO on one task until all episodes of an iteration finish or ``max_iterations`` ran (the
     seconds include the update after the finishing iteration, which SB3 runs before it stops)."""
     import gymnasium
-    from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv
 
@@ -59,9 +57,9 @@ def train_task(task_id: int, max_iterations: int, seed: int, log_every: int = 0)
             return recorders[-1]
         return build
 
-    env = DummyVecEnv([make(k) for k in range(NUM_COPIES)])
+    env = DummyVecEnv([make(k) for k in range(AUTHORS_PPO.n_envs)])
     env.seed(seed)
-    model = PPO("MlpPolicy", env, **authors_settings(seed))
+    model = make_sb3_ppo(env, AUTHORS_PPO, episode_steps=EPISODE_STEPS, seed=seed, pi=[32, 32], activation_fn=nn.Tanh)
     state = {"iterations": 0, "finished_at": None, "completion": 0.0}
 
     class UntilAllFinish(BaseCallback):

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import replace
 
 import torch
 
 from learner.relocation_expert_training import (
     INPUT_DIM,
     DaggerSettings,
-    PPOSettings,
+    FinetuneSettings,
     build_policy,
     export,
     ppo_finetune,
@@ -57,9 +58,10 @@ def ppo(a: argparse.Namespace) -> None:
         _log(f"no checkpoint at {checkpoint}: starting at iteration 0")
     policy = build_policy(INPUT_DIM, 256)
     policy.load_state_dict(torch.load(a.init, weights_only=True))
-    settings = PPOSettings(iterations=a.iterations, envs=a.envs, lr=a.lr, clip=a.clip, epochs=a.epochs,
-                           minibatch=a.minibatch, warmup=a.warmup, eval_every=a.eval_every, test_tasks=a.test_tasks,
-                           seed=a.seed)
+    ppo_settings = replace(FinetuneSettings().ppo, n_envs=a.n_envs, learning_rate=a.learning_rate,
+                           clip_range=a.clip_range, n_epochs=a.n_epochs, batch_size=a.batch_size)
+    settings = FinetuneSettings(ppo=ppo_settings, iterations=a.iterations, warmup=a.warmup, eval_every=a.eval_every,
+                                test_tasks=a.test_tasks, seed=a.seed)
     tuned = ppo_finetune(policy, settings, _log, on_eval=lambda p: export(p, a.out), checkpoint=checkpoint,
                          resume=a.resume)
     export(tuned, a.out)
@@ -80,19 +82,21 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument("--keep-rounds", type=int, default=ds.keep_rounds, help="train on the newest N rounds only (0: all)")
     d.add_argument("--seed", type=int, default=ds.seed)
     d.set_defaults(func=dagger)
-    q, ps = sub.add_parser("ppo", help="step 2: PPO with the paper's dense reward"), PPOSettings()
+    q, fs = sub.add_parser("ppo", help="step 2: PPO with the paper's dense reward"), FinetuneSettings()
+    ps = fs.ppo
     q.add_argument("--init", required=True, help="state_dict from the dagger step")
     q.add_argument("--out", required=True, help=".npz to write")
-    q.add_argument("--iterations", type=int, default=ps.iterations)
-    q.add_argument("--envs", type=int, default=ps.envs, help="training tasks rolled out per iteration")
-    q.add_argument("--lr", type=float, default=ps.lr)
-    q.add_argument("--clip", type=float, default=ps.clip)
-    q.add_argument("--epochs", type=int, default=ps.epochs)
-    q.add_argument("--minibatch", type=int, default=ps.minibatch)
-    q.add_argument("--warmup", type=int, default=ps.warmup, help="iterations that train only the critic")
-    q.add_argument("--eval-every", type=int, default=ps.eval_every)
-    q.add_argument("--test-tasks", type=int, default=ps.test_tasks, help="first N test tasks for the printed completion")
-    q.add_argument("--seed", type=int, default=ps.seed, help="seed of PPO (stable-baselines3) and of the tasks drawn")
+    q.add_argument("--iterations", type=int, default=fs.iterations)
+    # SB3's names (PPOSettings'), each with its former spelling
+    q.add_argument("--n-envs", "--envs", type=int, default=ps.n_envs, help="training tasks rolled out per iteration")
+    q.add_argument("--learning-rate", "--lr", type=float, default=ps.learning_rate, help="the policy's Adam rate")
+    q.add_argument("--clip-range", "--clip", type=float, default=ps.clip_range)
+    q.add_argument("--n-epochs", "--epochs", type=int, default=ps.n_epochs)
+    q.add_argument("--batch-size", "--minibatch", type=int, default=ps.batch_size)
+    q.add_argument("--warmup", type=int, default=fs.warmup, help="iterations that train only the value layers")
+    q.add_argument("--eval-every", type=int, default=fs.eval_every)
+    q.add_argument("--test-tasks", type=int, default=fs.test_tasks, help="first N test tasks for the printed completion")
+    q.add_argument("--seed", type=int, default=fs.seed, help="seed of PPO (stable-baselines3) and of the tasks drawn")
     q.add_argument("--checkpoint", help="state after every iteration (default: OUT.ckpt.pt)")
     q.add_argument("--resume", action="store_true", help="go on from --checkpoint (the same result as a run never stopped)")
     q.set_defaults(func=ppo)

@@ -393,8 +393,7 @@ def test_ppo_expert_benchmark_runs_the_authors_settings_on_sb3():
     spec = importlib.util.spec_from_file_location("relocation_ppo_expert", path)
     ppo = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(ppo)
-    settings = ppo.authors_settings(3)
-    assert settings["gae_lambda"] == 1.0 and settings["policy_kwargs"]["net_arch"] == {"pi": [32, 32], "vf": [64, 64]}
+    assert ppo.AUTHORS_PPO.gae_lambda == 1.0 and ppo.AUTHORS_PPO.value_arch() == [64, 64]
     first = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
     again = ppo.train_task(split_tasks("relocation", "train")[0], max_iterations=2, seed=3)
     assert first["iterations"] == 2 and first["finished_at"] is None

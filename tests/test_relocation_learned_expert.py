@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,12 @@ def _module(path: Path):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def _small(script, iterations: int):
+    """Step 2 on 2 envs, one warm-up iteration, no test in between, 4 minibatches per epoch."""
+    return script.FinetuneSettings(ppo=replace(script.EXPERT_PPO, n_envs=2, batch_size=175), iterations=iterations,
+                                   warmup=1, eval_every=100, test_tasks=1)
 
 
 def test_packaged_weights_load_without_pickle_and_give_distributions():
@@ -114,8 +121,8 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
     torch.manual_seed(1)
     init, out = tmp_path / "init.pt", tmp_path / "expert.npz"
     torch.save(script.build_policy(33, 256).state_dict(), init)
-    script.main(["--threads", "1", "ppo", "--init", str(init), "--out", str(out), "--iterations", "2", "--envs", "4",
-                 "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])
+    script.main(["--threads", "1", "ppo", "--init", str(init), "--out", str(out), "--iterations", "2", "--n-envs", "4",
+                 "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])  # a former name too
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
     assert lines[1].startswith("iteration 0:")  # the critic warm-up (no policy step: the test below checks)
@@ -141,14 +148,14 @@ def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
     with torch.no_grad():
         policy[0].running_mean.uniform_(-1, 1)
     policy.eval()
-    settings = script.PPOSettings(iterations=2, envs=2, warmup=1, eval_every=100, test_tasks=1, minibatch=175)
+    settings = _small(script, iterations=2)
     model = script.sb3_ppo(policy, settings)
     x = torch.randn(7, 33)
     model.policy.set_training_mode(False)
     with torch.no_grad():
         assert torch.allclose(model.policy.get_distribution(x).distribution.logits, torch.log_softmax(policy(x), 1), atol=1e-5)
     lines: list[str] = []
-    once = script.ppo_finetune(policy, script.PPOSettings(**{**settings.__dict__, "iterations": 1}), lines.append)
+    once = script.ppo_finetune(policy, replace(settings, iterations=1), lines.append)
     assert all(torch.equal(a, b) for a, b in zip(once.parameters(), policy.parameters()))  # warm-up: value layers only
     tuned = script.ppo_finetune(policy, settings, lines.append)
     assert any(not torch.equal(a, b) for a, b in zip(tuned.parameters(), policy.parameters()))
@@ -160,12 +167,10 @@ def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_s
     """Two iterations, stopped, then resumed to three: the checkpoint after the third (SB3's whole
     policy with the value layers, Adam's state, the generators) equals an unstopped run's, and the
     third iteration moved the policy."""
-    from dataclasses import replace
-
     from learner import relocation_expert_training as script
     torch.manual_seed(0)
     policy = script.build_policy(33, 32).eval()
-    settings = script.PPOSettings(iterations=3, envs=2, warmup=1, eval_every=100, test_tasks=1, minibatch=175)
+    settings = _small(script, iterations=3)
     whole, stopped = str(tmp_path / "whole.pt"), str(tmp_path / "stopped.pt")
     script.ppo_finetune(policy, settings, lambda _: None, checkpoint=whole)
     script.ppo_finetune(policy, replace(settings, iterations=2), lambda _: None, checkpoint=stopped)
@@ -180,10 +185,41 @@ def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_s
     assert torch.equal(a["torch_rng"], b["torch_rng"]) and a["env_rngs"] == b["env_rngs"]
     moved = [n for n in a["policy"] if not torch.equal(a["policy"][n], after_two["policy"][n])]
     assert any(n.startswith("mlp_extractor.policy_net") for n in moved)
-    with pytest.raises(ValueError, match="other settings: lr 5e-05 \\(now 0.001\\)"):
-        script.ppo_finetune(policy, replace(settings, lr=1e-3), lambda _: None, checkpoint=stopped, resume=True)
+    faster = replace(settings, ppo=replace(settings.ppo, learning_rate=1e-3))
+    with pytest.raises(ValueError, match="other settings: ppo.learning_rate 5e-05 \\(now 0.001\\)"):
+        script.ppo_finetune(policy, faster, lambda _: None, checkpoint=stopped, resume=True)
     with pytest.raises(ValueError, match="another policy"):
         script.ppo_finetune(script.build_policy(33, 32).eval(), settings, lambda _: None, checkpoint=stopped, resume=True)
+
+
+def test_a_checkpoint_with_the_former_setting_names_resumes_to_the_same_result(tmp_path):
+    """A format-1 checkpoint (settings named ``envs``, ``lr``, ``critic_lr``, ``clip``, ``epochs``,
+    ``minibatch``, ``max_kl`` = 1.5 x SB3's ``target_kl``) resumes as its format-2 twin; another
+    format is refused by name."""
+    from learner import relocation_expert_training as script
+    torch.manual_seed(0)
+    policy = script.build_policy(33, 32).eval()
+    settings = _small(script, iterations=3)
+    whole, stopped = str(tmp_path / "whole.pt"), str(tmp_path / "stopped.pt")
+    script.ppo_finetune(policy, settings, lambda _: None, checkpoint=whole)
+    script.ppo_finetune(policy, replace(settings, iterations=2), lambda _: None, checkpoint=stopped)
+    state = torch.load(stopped, weights_only=True)
+    assert state["format"] == script.CHECKPOINT_FORMAT == 2 and state["settings"]["ppo.learning_rate"] == 5e-5
+    p = settings.ppo
+    old = {"envs": p.n_envs, "lr": p.learning_rate, "critic_lr": p.value_learning_rate, "clip": p.clip_range,
+           "epochs": p.n_epochs, "minibatch": p.batch_size, "warmup": settings.warmup, "gamma": p.gamma,
+           "gae_lambda": p.gae_lambda, "return_scale": settings.return_scale, "max_kl": 0.02, "seed": settings.seed}
+    torch.save({**state, "format": 1, "settings": old}, stopped)
+    script.ppo_finetune(policy, settings, lambda _: None, checkpoint=stopped, resume=True)
+    a, b = torch.load(whole, weights_only=True), torch.load(stopped, weights_only=True)
+    assert b["format"] == 2 and a["iteration"] == b["iteration"] == 3
+    assert all(torch.equal(a["policy"][name], b["policy"][name]) for name in a["policy"])
+    torch.save({**state, "format": 1, "settings": {**old, "critic_lr": 1e-4}}, stopped)
+    with pytest.raises(ValueError, match="other settings: ppo.value_learning_rate 0.0001 \\(now 0.001\\)"):
+        script.ppo_finetune(policy, settings, lambda _: None, checkpoint=stopped, resume=True)
+    torch.save({**state, "format": 7}, stopped)
+    with pytest.raises(ValueError, match="checkpoint format 7; this code reads 1 and 2"):
+        script.ppo_finetune(policy, settings, lambda _: None, checkpoint=stopped, resume=True)
 
 
 def test_the_ppo_stage_envs_hold_only_their_current_episodes_env():

@@ -17,9 +17,9 @@ from gpl_dist.cli import main
 from gpl_dist.config import ConfigError
 from gpl_dist.models.build import state_dict_to_numpy
 from learner.evaluate import load_trained_policy
+from learner.ppo import PPOSettings
 from learner.rl import (
     CompletionRecorder,
-    PPOSettings,
     RLJob,
     _instruction_only,
     all_copies_solved,
@@ -215,6 +215,9 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
     ({"ppo": {"batch_size": 1}}, r"ppo\.batch_size: expected a whole number >= 2"),
     ({"ppo": {"value_hidden": 64.5}}, r"ppo\.value_hidden: expected a whole number"),
     ({"ppo": {"learning_rate": True}}, r"ppo\.learning_rate: expected a number"),
+    ({"ppo": {"learning_rate": None}}, r"ppo\.learning_rate: expected a number >= 0$"),
+    ({"ppo": {"target_kl": "0.01"}}, r"ppo\.target_kl: expected a number >= 0 or null"),
+    ({"ppo": {"value_layers": 0}}, r"ppo\.value_layers: expected a whole number >= 1"),
     ({"colour": 1}, "unknown key"),
     ({"trajectories": 0}, "expected an int >= 1"),
 ])
@@ -228,6 +231,26 @@ def test_a_domain_overrides_the_common_ppo_settings(tmp_path):
     assert plan.settings("multiroom") == PPOSettings(n_envs=2, n_steps=64, batch_size=32, n_epochs=1)
     shipped = load_suite("configs/suites/paper.yaml").rl
     assert shipped.settings("relocation").batch_size == 128 and shipped.settings("multiroom") == PPOSettings()
+    optional = load_suite(_suite(tmp_path, ppo={"target_kl": None, "multiroom": {"value_learning_rate": 0.01}})).rl
+    assert optional.settings("multiroom") == PPOSettings(value_learning_rate=0.01)
+
+
+def test_a_result_written_before_the_ppo_settings_gained_fields_stays_current(tmp_path):
+    """Results record their ``PPOSettings``; one written before it had ``value_learning_rate``,
+    ``target_kl``, ``max_grad_norm`` and ``value_layers`` ran with their defaults, and counts as such."""
+    import dataclasses
+
+    from gpl_dist.app.suite.rl_jobs import is_current, write_result
+    from learner.rl import RLCurve
+
+    settings = PPOSettings(n_envs=2)
+    later = ("value_learning_rate", "target_kl", "max_grad_norm", "value_layers")
+    old = {k: v for k, v in dataclasses.asdict(settings).items() if k not in later}
+    curve = RLCurve(RLJob("rl-scratch", "multiroom", 1, 0, 5), (1.0,) * 5, (True,) * 5, 1, 1.0)
+    write_result(tmp_path, curve.job.key, {**curve.to_json(), "settings": old})
+    assert is_current(tmp_path, curve.job, settings)
+    assert not is_current(tmp_path, curve.job, PPOSettings(n_envs=2, max_grad_norm=1.0))  # not those defaults
+    assert not is_current(tmp_path, curve.job, PPOSettings(n_envs=3))
 
 
 def test_curves_are_read_at_log_spaced_points():

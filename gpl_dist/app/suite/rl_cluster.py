@@ -19,7 +19,7 @@ def _rl_task(job, settings, weights, model):
 
 def run_rl_on_ray(jobs: list, settings: dict, pretrained: dict, address: str | None, on_done, log=print) -> None:
     """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
-    as each finishes. ``settings``: domain -> ``learner.rl.PPOSettings``. ``pretrained``: domain ->
+    as each finishes. ``settings``: domain -> ``learner.ppo.PPOSettings``. ``pretrained``: domain ->
     ``gpl_dist.app.suite.rl_jobs.Pretrained`` for ``rl-finetune`` (its weights put in the object store
     once). Raises after all ended if any failed."""
     owned = init_ray(address, num_workers=1)

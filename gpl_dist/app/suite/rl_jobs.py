@@ -21,7 +21,6 @@ settings stay on disk, are counted as left out and never mix into the medians.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -35,7 +34,7 @@ from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import state_dict_to_numpy
 from learner.checkpoint import rounds_trained
 from learner.evaluate import load_trained_policy, meta_test_rollout
-from learner.rl import RLCurve, RLJob, run_rl_job
+from learner.rl import RLCurve, RLJob, made_with, run_rl_job
 
 
 def result_path(out: str | Path, key: str) -> Path:
@@ -45,14 +44,14 @@ def result_path(out: str | Path, key: str) -> Path:
 
 def is_current(out: str | Path, job, settings, policy: str | None = None) -> bool:
     """Whether ``job``'s result is written for this very job (its budget is not in the file's
-    name), made with ``settings`` (``learner.rl.PPOSettings``) and, for a job that starts from a
+    name), made with ``settings`` (``learner.ppo.PPOSettings``) and, for a job that starts from a
     trained policy, from the one of fingerprint ``policy``."""
 
     path = result_path(out, job.key)
     if not path.is_file():
         return False
     data = json.loads(path.read_text())
-    return (RLJob(**data["job"]) == job and data.get("settings") == dataclasses.asdict(settings)
+    return (RLJob(**data["job"]) == job and made_with(data.get("settings"), settings)
             and data.get("policy") == policy)
 
 
@@ -231,7 +230,7 @@ def _of_plan(data: dict, key: str, plan: RLPlan, wanted: Mapping[str, Any]) -> b
         return (AttemptsJob(data["entry"], data["domain"], data["seed"]) == job
                 and data["tasks"] == list(plan.tasks[job.domain]))
     return (job is not None and RLJob(**data["job"]) == job
-            and data.get("settings") == dataclasses.asdict(plan.settings(job.domain)))
+            and made_with(data.get("settings"), plan.settings(job.domain)))
 
 
 def load_results(out: str | Path, plan: RLPlan | None = None) -> tuple[list, list[dict], dict[str, int], list[str]]:

@@ -12,7 +12,8 @@ from typing import Any, Mapping
 
 from gpl_dist.config import ConfigError
 from gpl_dist.domains import get_domain
-from learner.rl import RL_METHODS, PPOSettings, RLJob
+from learner.ppo import PPOSettings
+from learner.rl import RL_METHODS, RLJob
 
 #: Attempts drawn for GPL and GPR (the paper's figure: completion after k attempts at k trajectories).
 ATTEMPTS = 6
@@ -33,11 +34,11 @@ class RLPlan:
     attempts_from: Mapping[str, tuple[str, ...]]
     """Domain -> the suite entries (GPL, GPR) drawn as points at 1..6 trajectories."""
     ppo: Mapping[str, Any]
-    """``learner.rl.PPOSettings`` fields that differ from their defaults, for every domain; a
+    """``learner.ppo.PPOSettings`` fields that differ from their defaults, for every domain; a
     domain's name maps to its own further overrides (``relocation: {batch_size: 128}``)."""
 
     def settings(self, domain: str):
-        """The ``learner.rl.PPOSettings`` of ``domain``'s jobs."""
+        """The ``learner.ppo.PPOSettings`` of ``domain``'s jobs."""
 
         common = {k: v for k, v in self.ppo.items() if not isinstance(v, Mapping)}
         return PPOSettings(**{**common, **self.ppo.get(domain, {})})
@@ -91,14 +92,19 @@ def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
     expect(isinstance(ppo, dict), "ppo", "expected a mapping of PPO settings")
     for domain in (k for k in ppo if k in tasks):
         expect(isinstance(ppo[domain], dict), f"ppo.{domain}", "expected a mapping of PPO settings")
-    types = {f.name: str(f.type) for f in dataclasses.fields(PPOSettings)}  # "int", "float" or "bool"
-    least = {"n_envs": 1, "n_steps": 0, "batch_size": 2, "n_epochs": 1, "value_hidden": 1}  # SB3 wants minibatches > 1
+    # "int", "float", "bool" or "float | None"
+    types = {f.name: str(f.type) for f in dataclasses.fields(PPOSettings)}
+    # SB3 wants minibatches > 1
+    least = {"n_envs": 1, "n_steps": 0, "batch_size": 2, "n_epochs": 1, "value_hidden": 1, "value_layers": 1}
     overrides = [("ppo.", {k: v for k, v in ppo.items() if k not in tasks})]
     overrides += [(f"ppo.{d}.", ppo[d]) for d in ppo if d in tasks]
     for prefix, settings in overrides:
         for key, value in settings.items():
             expect(key in types, f"{prefix}{key}", f"unknown PPO setting (known: {', '.join(sorted(types))}, or a domain)")
             kind = types[key]
+            if kind.endswith(" | None") and value is None:
+                continue  # an optional setting left unset (null)
+            kind = kind.removesuffix(" | None")
             if kind == "bool":
                 expect(isinstance(value, bool), f"{prefix}{key}", "expected true or false")
             elif kind == "int":
@@ -106,7 +112,7 @@ def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
                 expect(ok, f"{prefix}{key}", f"expected a whole number >= {least.get(key, 0)}")
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool) and value >= 0
-                expect(ok, f"{prefix}{key}", "expected a number >= 0")
+                expect(ok, f"{prefix}{key}", "expected a number >= 0" + (" or null" if types[key] != kind else ""))
     return RLPlan(tasks, tuple(seeds), raw["trajectories"], dict(pretrained), attempts_from, dict(ppo))
 
 
