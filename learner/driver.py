@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_dict, save_config
+from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 from gpl_dist.metrics import ROUND_LINE_LEGEND, completion_by_corrections
@@ -389,7 +390,7 @@ def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ..
                 config=config_to_dict(cfg), history=[m.to_dict() for m in history], run_id=run_id))
             if r == start_round:
                 print(ROUND_LINE_LEGEND)
-            _log_round(run_dir, tb, metrics)
+            _log_round(run_dir, tb, metrics, ("correction",) if cfg.env.correction_kind in CONSTANT_KINDS else ())
     finally:
         if tb is not None:
             tb.close()
@@ -483,8 +484,10 @@ def _tensorboard(run_dir: Path):
     return SummaryWriter(str(run_dir / "tb"))
 
 
-def format_round(m: RoundMetrics) -> str:
-    """The one-line summary of a round that ``gpl-dist train`` prints (``ROUND_LINE_LEGEND``)."""
+def format_round(m: RoundMetrics, constant_inputs: tuple[str, ...] = ()) -> str:
+    """The one-line summary of a round that ``gpl-dist train`` prints (``ROUND_LINE_LEGEND``).
+    ``constant_inputs``: encoders whose input is one fixed value by design (the retry control's
+    correction, ``gpl_dist.corrections.CONSTANT_KINDS``): a dead layer there is noted, not warned."""
     curve = " ".join(f"c{k}={v:.3f}" for k, v in enumerate(m.completion_by_corrections))
     collected = "resumed" if m.collected_tuples is None else f"{m.collected_tuples} tuples"
     spread = m.correction_spread
@@ -496,7 +499,10 @@ def format_round(m: RoundMetrics) -> str:
         line += ("\nwarning: the correction module's output no longer varies between attempts (dead units);"
                  " the policy cannot use corrections")
     for h in m.encoder_health:
-        if h.output_dead:
+        if h.encoder in constant_inputs and (h.output_dead or h.constant):
+            line += (f"\nnote: the {h.encoder} encoder's input is one fixed sentence here (a constant correction kind),"
+                     " so its encoding is constant by design; not a dead encoder")
+        elif h.output_dead:
             line += (f"\nwarning: all {h.output_units} output units of the {h.encoder} encoder are dead (never positive;"
                      " for MIVOA's LSTM, constant): the policy no longer sees its input (for GPL, model.linear_encodings keeps"
                      " encodings linear)")
@@ -506,10 +512,10 @@ def format_round(m: RoundMetrics) -> str:
     return line
 
 
-def _log_round(run_dir: Path, tb, m: RoundMetrics) -> None:
+def _log_round(run_dir: Path, tb, m: RoundMetrics, constant_inputs: tuple[str, ...] = ()) -> None:
     with open(run_dir / "metrics.jsonl", "a") as fh:
         fh.write(json.dumps(m.to_dict()) + "\n")
-    print(format_round(m), flush=True)
+    print(format_round(m, constant_inputs), flush=True)
     if tb is not None:
         r = m.round_index
         tb.add_scalar("train/loss", m.loss, r)

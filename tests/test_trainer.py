@@ -195,6 +195,10 @@ def test_encoder_health_counts_dead_units_and_the_round_line_warns_of_a_dead_enc
     assert instruction.constant and not instruction.output_dead and instruction.dead_units >= 16
     warned = format_round(dataclasses.replace(m, encoder_health=(instruction,)))
     assert "every unit of a hidden layer of the instruction encoder is dead" in warned
+    # an input constant by design (the retry control's correction) is noted, not warned about
+    noted = format_round(dataclasses.replace(m, encoder_health=(dataclasses.replace(instruction, encoder="correction"),)),
+                         ("correction",))
+    assert "warning" not in noted and "constant by design" in noted
 
 
 def test_mivoa_health_counts_constant_lstm_units_and_a_mivoa_round_records_it(tmp_path):
