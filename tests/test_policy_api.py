@@ -21,7 +21,7 @@ def policy(tmp_path_factory):
 
 
 def test_attempts_from_corrections_are_meta_tests_and_replay_exactly(policy):
-    by_oracle = policy.attempts(263, seed=1, num_corrections=4)  # the README's GIF: solved after 3 corrections
+    by_oracle = policy.attempts(263, seed=1, num_corrections=4)  # the README's GIF: solved after 2 corrections
     assert len(by_oracle) >= 2 and by_oracle[-1].success and not by_oracle[0].success
     said = [a.correction for a in by_oracle[:-1]]
     assert said[0] == policy.oracle_correction(by_oracle[0], seed=1)

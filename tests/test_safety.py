@@ -487,6 +487,8 @@ def test_config_text_mistakes_are_named(tmp_path, capsys):
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "collection.num_corrections=1000"],
                           "collection.num_corrections must be in 0..100"),
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "env.domain=" + "x" * 100_000],
+                          "override env.domain: the value is 100000 characters long; at most 10000"),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "env.domain=" + "x" * 5000],
                           "env.domain must be one of")]:
         assert main(["train", *args, "--serial", "--run-dir", str(tmp_path / "run")]) == 2
         err = _one_line_error(capsys, needle)
