@@ -556,7 +556,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, func, text in (("teach", cmd_teach, "correct a trained policy yourself, in the terminal"),
                              ("serve", cmd_serve, "correct a trained policy yourself, in a web page")):
-        p = sub.add_parser(name, help=text)
+        p = sub.add_parser(name, help=text, epilog=(
+            "after each attempt, type a correction, or one of the commands ':hint' (what the run's oracle would say), "
+            "':undo' (take the last correction back), ':quit'" if name == "teach" else None))
         p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt)")
         p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
         _add_foreign_checkpoint(p)

@@ -110,3 +110,11 @@ def test_a_teaching_log_exports_every_attempt_replayed_undone_ones_included(run,
     # the chain rebuilt from the rows alone: attempt 2 followed the attempt made in the undone one's place
     chains = {(r["attempt"], r["undone"]): [c["correction_before"] for c in chain] for r, chain in teaching_chains(rows)}
     assert chains[(2, False)] == ["", "enter the grey room"] and chains[(1, True)] == [""]
+    # RUN/teaching/log without --dataset-id: named after the run, not after the folder "log"
+    import shutil
+
+    taught = tmp_path / "myrun" / "teaching" / "log"
+    shutil.copytree(log, taught)
+    capsys.readouterr()
+    assert main(["export", str(taught), "--out", str(out)]) == 0
+    assert "gpl-dist/multiroom-myrun-teaching-v0" in capsys.readouterr().out

@@ -223,7 +223,9 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
                              "or restore the run and give --run-dir")
         policies[(run, ckpt, greedy)] = load_policy(run, ckpt, greedy=greedy, allow_foreign=True)
     vocab = next(iter(policies.values())).domain.vocabulary_for(next(iter(policies.values())).cfg.model.paraphrases)
-    dataset_id = dataset_id or default_dataset_id(log_dir, domain.name)
+    if not dataset_id:  # RUN/teaching/log: named after the run, so two runs' logs do not share an id
+        named = log_dir.resolve().parent.parent if log_dir.resolve().parent.name == "teaching" else log_dir
+        dataset_id = default_dataset_id(named, domain.name).removesuffix("-v0") + "-teaching-v0"
     storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
     by_episode: dict[str, list[dict]] = {}
     for r in rows:
