@@ -163,17 +163,24 @@ def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
     assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
 
 
-def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_stopped(tmp_path):
-    """Two iterations, stopped, then resumed to three: the checkpoint after the third (SB3's whole
-    policy with the value layers, Adam's state, the generators) equals an unstopped run's, and the
-    third iteration moved the policy."""
-    from learner import relocation_expert_training as script
+def _whole_and_stopped(script, tmp_path):
+    """A small policy, 3-iteration settings, and the checkpoints of a run never stopped (``whole``,
+    3 iterations) and of one stopped after 2 (``stopped``)."""
     torch.manual_seed(0)
     policy = script.build_policy(33, 32).eval()
     settings = _small(script, iterations=3)
     whole, stopped = str(tmp_path / "whole.pt"), str(tmp_path / "stopped.pt")
     script.ppo_finetune(policy, settings, lambda _: None, checkpoint=whole)
     script.ppo_finetune(policy, replace(settings, iterations=2), lambda _: None, checkpoint=stopped)
+    return policy, settings, whole, stopped
+
+
+def test_the_experts_ppo_stage_resumed_from_its_checkpoint_ends_as_a_run_never_stopped(tmp_path):
+    """Two iterations, stopped, then resumed to three: the checkpoint after the third (SB3's whole
+    policy with the value layers, Adam's state, the generators) equals an unstopped run's, and the
+    third iteration moved the policy."""
+    from learner import relocation_expert_training as script
+    policy, settings, whole, stopped = _whole_and_stopped(script, tmp_path)
     after_two = torch.load(stopped, weights_only=True)
     lines: list[str] = []
     script.ppo_finetune(policy, settings, lines.append, checkpoint=stopped, resume=True)
@@ -197,12 +204,7 @@ def test_a_checkpoint_with_the_former_setting_names_resumes_to_the_same_result(t
     ``minibatch``, ``max_kl`` = 1.5 x SB3's ``target_kl``) resumes as its format-2 twin; another
     format is refused by name."""
     from learner import relocation_expert_training as script
-    torch.manual_seed(0)
-    policy = script.build_policy(33, 32).eval()
-    settings = _small(script, iterations=3)
-    whole, stopped = str(tmp_path / "whole.pt"), str(tmp_path / "stopped.pt")
-    script.ppo_finetune(policy, settings, lambda _: None, checkpoint=whole)
-    script.ppo_finetune(policy, replace(settings, iterations=2), lambda _: None, checkpoint=stopped)
+    policy, settings, whole, stopped = _whole_and_stopped(script, tmp_path)
     state = torch.load(stopped, weights_only=True)
     assert state["format"] == script.CHECKPOINT_FORMAT == 2 and state["settings"]["ppo.learning_rate"] == 5e-5
     p = settings.ppo

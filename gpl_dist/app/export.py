@@ -222,7 +222,8 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
             raise UsageError(f"the checkpoint {ckpt} the logs name is not here: export on the machine that taught, "
                              "or restore the run and give --run-dir")
         policies[(run, ckpt, greedy)] = load_policy(run, ckpt, greedy=greedy, allow_foreign=True)
-    vocab = next(iter(policies.values())).domain.vocabulary_for(next(iter(policies.values())).cfg.model.paraphrases)
+    first = next(iter(policies.values()))
+    vocab = domain.vocabulary_for(first.cfg.model.paraphrases)
     if not dataset_id:  # RUN/teaching/log: named after the run, so two runs' logs do not share an id
         named = log_dir.resolve().parent.parent if log_dir.resolve().parent.name == "teaching" else log_dir
         dataset_id = default_dataset_id(named, domain.name).removesuffix("-v0") + "-teaching-v0"
@@ -237,12 +238,13 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
             for row, chain in teaching_chains(by_episode[episode]):
                 policy = policies[(str(run_dir) if run_dir else row["run_dir"], row["checkpoint"], bool(row["greedy"]))]
                 texts = [r["correction_before"] for r in chain[1:]] + ([row["correction_before"]] if chain else [])
-                a = policy.attempts(int(row["task_id"]), texts, seed=int(row["seed"]))[-1]
+                replayed = policy.attempts(int(row["task_id"]), texts, seed=int(row["seed"]))
+                a = replayed[-1]
                 what = f"teaching episode {episode[:40]} attempt {row['attempt']} (task {row['task_id']})"
                 if a.completion != row["completion"]:
                     raise UsageError(f"{what} replays to completion {a.completion:.4f}, not the logged "
                                      f"{row['completion']:.4f}: another checkpoint or code than the one that taught")
-                ids = [[int(i) for i in vocab.encode(t)] for t in texts]
+                ids = [[int(i) for i in r.correction_ids] for r in replayed[:-1]]  # what the policy read
                 metas.append({
                     "episode": episode, "source": row["source"], "run_dir": row["run_dir"], "checkpoint": row["checkpoint"],
                     "checkpoint_round": row["checkpoint_round"], "greedy": row["greedy"], "task_id": row["task_id"],
