@@ -62,10 +62,10 @@ TEXT_CHARSET = string.printable
 MAX_INSTRUCTION_CHARS = 1000
 
 
-def default_dataset_id(run_dir: str | Path, domain: str) -> str:
-    """``gpl-dist/<domain>-<run dir name>-v0``: Minari's ``namespace/name-vN`` form."""
+def default_dataset_id(run_dir: str | Path, domain: str, kind: str = "") -> str:
+    """``gpl-dist/<domain>-<run dir name>[-<kind>]-v0``: Minari's ``namespace/name-vN`` form."""
     name = re.sub(r"[^a-z0-9]+", "-", Path(run_dir).resolve().name.lower()).strip("-") or "run"
-    return f"gpl-dist/{domain}-{name}-v0"
+    return f"gpl-dist/{domain}-{name}{'-' + kind if kind else ''}-v0"
 
 
 def _minari():
@@ -226,7 +226,7 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     vocab = domain.vocabulary_for(first.cfg.model.paraphrases)
     if not dataset_id:  # RUN/teaching/log: named after the run, so two runs' logs do not share an id
         named = log_dir.resolve().parent.parent if log_dir.resolve().parent.name == "teaching" else log_dir
-        dataset_id = default_dataset_id(named, domain.name).removesuffix("-v0") + "-teaching-v0"
+        dataset_id = default_dataset_id(named, domain.name, kind="teaching")
     storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
     by_episode: dict[str, list[dict]] = {}
     for r in rows:
