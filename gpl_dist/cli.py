@@ -101,7 +101,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     seeds = _parse_seeds(args.seeds)
     result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
                                 max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy,
-                                phrasings=args.phrasings, foreign_checkpoint=args.foreign_checkpoint, out_dir=args.out)
+                                phrasings=args.phrasings, foreign_checkpoint=args.foreign_checkpoint, out_dir=args.out,
+                                swap_instructions=args.swap_instructions)
     import json
     report = json.loads(path.read_text())
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
@@ -490,6 +491,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-tasks", type=int, help="evaluate only the first N tasks")
     p.add_argument("--phrasings", choices=PHRASINGS,
                    help="say instructions and corrections as the oracle does (canonical) or as train/heldout paraphrases")
+    p.add_argument("--swap-instructions", action="store_true",
+                   help="a control: tell each task another task's instruction (a policy blind to its "
+                        "instruction scores the same as without this); writes eval-...-swapped-instructions.json")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     _add_foreign_checkpoint(p)
     p.add_argument("--out", help="folder for the evaluation's files (default RUN_DIR; required with --foreign-checkpoint)")

@@ -34,6 +34,7 @@ from gpl_dist.models.build import PolicyNetwork, build_model_from_config
 from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
 from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks
+from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
 from learner.identity import read_identity, resolve_identity
 from workers.rollout import Rollout
@@ -151,23 +152,44 @@ def _load_policy(run_dir: str | Path, checkpoint: str | None, allow_foreign: boo
     return cfg, model, ckpt
 
 
-def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False, phrasings: str = "canonical") -> Rollout:
+def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False, phrasings: str = "canonical",
+                      told_instructions: dict[int, str] | None = None) -> Rollout:
     """The rollout loop as Algorithm 2 runs it: the run's oracle corrects (said in ``phrasings``),
-    and the policy is conditioned as the run's ``model`` section says."""
+    and the policy is conditioned as the run's ``model`` section says (told ``told_instructions``
+    in place of their own instructions, where given)."""
     domain = get_domain(cfg.env.domain)
     return Rollout(domain, model, make_corrector(domain.name, cfg.env.correction_kind), greedy=greedy,
                    end_aligned=cfg.model.trajectory_ends_at_last_state,
-                   full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS, phrasings=phrasings)
+                   full_information=cfg.model.variant in FULL_INFORMATION_VARIANTS, phrasings=phrasings,
+                   told_instructions=told_instructions)
+
+
+def swapped_instructions(domain_name: str, tasks: tuple[int, ...]) -> dict[int, str]:
+    """The instruction-swap control: each task of ``tasks`` is told the instruction of the next
+    task in the list (cyclically) whose instruction differs from its own. Completion with these
+    against completion with their own says how much a policy reads its instruction (a policy
+    blind to it scores the same). Fails when every task has the same instruction."""
+    domain = get_domain(domain_name)
+    own = [domain.make_env(t).instruction for t in tasks]
+    if len(set(own)) < 2:
+        raise UsageError(f"the {len(tasks)} tasks share one instruction: there is none to swap in")
+    told = {}
+    for i, t in enumerate(tasks):
+        j = next(j % len(tasks) for j in range(i + 1, i + len(tasks)) if own[j % len(tasks)] != own[i])
+        told[t] = own[j]
+    return told
 
 
 def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: int, seeds: tuple[int, ...], split: str = "test",
                     max_tasks: int = 0, greedy: bool = False, chunk: int = 128,
-                    tasks: tuple[int, ...] | None = None, phrasings: str = "canonical") -> EvalResult:
+                    tasks: tuple[int, ...] | None = None, phrasings: str = "canonical",
+                    swap_instructions: bool = False) -> EvalResult:
     """Algorithm 2 on ``tasks`` (default: the split's tasks, the first ``max_tasks`` of them).
 
     ``model`` is rolled out as it is, in eval mode (its training mode is restored afterwards),
     conditioned as the run's ``model`` section says; the run's oracle gives the corrections,
-    and the instruction and corrections are said in ``phrasings`` (``language.PHRASINGS``).
+    and the instruction and corrections are said in ``phrasings`` (``language.PHRASINGS``). With
+    ``swap_instructions`` each task is told another task's instruction (``swapped_instructions``).
     """
     domain = get_domain(cfg.env.domain)
     tasks = tasks or split_tasks(domain.name, split)
@@ -175,7 +197,11 @@ def evaluate_policy(cfg: RunConfig, model: PolicyNetwork, *, num_corrections: in
         tasks = tasks[:max_tasks]
     if any(p.device.type != "cpu" for p in model.parameters()):
         model = copy.deepcopy(model).cpu()  # rollouts run on the CPU, beside the envs
-    rollout = meta_test_rollout(cfg, model, greedy, phrasings)
+    if swap_instructions and cfg.model.variant not in READS_INSTRUCTION:
+        raise UsageError(f"variant {cfg.model.variant} reads no instruction: there is none to swap "
+                         f"(the swap control applies to {', '.join(READS_INSTRUCTION)})")
+    told = swapped_instructions(domain.name, tuple(tasks)) if swap_instructions else None
+    rollout = meta_test_rollout(cfg, model, greedy, phrasings, told)
     was_training = model.training
     model.eval()
     start = time.perf_counter()
@@ -261,14 +287,16 @@ def plot(domain: str, result: EvalResult, path: Path, title: str, with_paper: bo
 
 
 def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: int, seeds: tuple[int, ...],
-                max_tasks: int, checkpoint: str | None, phrasings: str = "canonical") -> str:
+                max_tasks: int, checkpoint: str | None, phrasings: str = "canonical",
+                swap_instructions: bool = False) -> str:
     """``eval`` for the run's own evaluation settings, else ``eval-`` plus what differs from them."""
     e = cfg.eval
     tags = [split if split != e.split else "", ("greedy" if greedy else "sampled") if greedy != e.greedy_actions else "",
             f"c{num_corrections}" if num_corrections != e.num_corrections else "",
             "seeds" + "_".join(str(s) for s in seeds) if tuple(seeds) != tuple(e.seeds) else "",
             f"first{max_tasks}" if max_tasks != e.max_tasks else "", Path(checkpoint).stem if checkpoint else "",
-            f"{phrasings}-phrasings" if phrasings != e.phrasings else ""]
+            f"{phrasings}-phrasings" if phrasings != e.phrasings else "",
+            "swapped-instructions" if swap_instructions else ""]
     return "-".join(["eval", *(t for t in tags if t)])
 
 
@@ -283,11 +311,12 @@ def write_atomic(path: Path, data: bytes) -> None:
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
                  split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
                  greedy: bool | None = None, phrasings: str | None = None, foreign_checkpoint: bool = False,
-                 out_dir: str | Path | None = None) -> tuple[EvalResult, Path]:
+                 out_dir: str | Path | None = None, swap_instructions: bool = False) -> tuple[EvalResult, Path]:
     """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
     ``report_stem``) into the run dir (or ``out_dir``), atomically, and returns the result and the
     JSON's path. A checkpoint of another run, domain or model is refused unless
-    ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir)."""
+    ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir).
+    ``swap_instructions`` tells each task another task's instruction (``swapped_instructions``)."""
     run_dir = Path(run_dir)
     target = Path(out_dir) if out_dir is not None else run_dir
     if foreign_checkpoint:
@@ -325,14 +354,16 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
               f"of the {phrasings} phrasings it never saw as <unk>, so this measures unseen words, not new phrasings "
               "of known ones (train with --set model.paraphrases=true to compare)", flush=True)
     result = evaluate_policy(cfg, model, num_corrections=k, seeds=seeds, split=split,
-                             max_tasks=max_tasks, greedy=greedy, phrasings=phrasings)
+                             max_tasks=max_tasks, greedy=greedy, phrasings=phrasings,
+                             swap_instructions=swap_instructions)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
-                       checkpoint=checkpoint, phrasings=phrasings)
+                       checkpoint=checkpoint, phrasings=phrasings, swap_instructions=swap_instructions)
     payload = {"run_dir": str(run_dir), "run_id": ckpt_run, "domain": cfg.env.domain, "variant": cfg.model.variant,
                "split": split,
                "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
                "seeds": list(seeds), "max_tasks": max_tasks,
                "greedy_actions": greedy, "phrasings": phrasings, "trained_with_paraphrases": cfg.model.paraphrases,
+               "instructions": "swapped" if swap_instructions else "own",
                "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,

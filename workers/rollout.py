@@ -19,7 +19,7 @@ choices ``seeding.correction_rng(seed, task, k)``.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Union, cast
 
@@ -121,6 +121,9 @@ class Rollout:
             or as the domain's ``train`` or ``heldout`` paraphrases (``language.Paraphrases``;
             drawn with ``seeding.instruction_phrasing_rng`` and ``seeding.correction_phrasing_rng``).
             A person's corrections are paraphrased too unless ``canonical``.
+        told_instructions: the instruction each listed task is told in place of its own (the
+            instruction-swap control, ``learner.evaluate.swapped_instructions``), said in
+            ``phrasings`` as its own would be; tasks not listed are told their own.
 
     Text is encoded with the policy's own vocabulary (``policy.vocabulary``): words it lacks read
     as ``<unk>``.
@@ -128,7 +131,8 @@ class Rollout:
 
     def __init__(self, domain: DomainSpec, policy: PolicyNetwork, corrections: CorrectionSource,
                  expert: Expert | None = None, *, greedy: bool = False, end_aligned: bool = False,
-                 full_information: bool = False, phrasings: str = "canonical"):
+                 full_information: bool = False, phrasings: str = "canonical",
+                 told_instructions: Mapping[int, str] | None = None):
         self.domain = domain
         self.vocab = policy.vocabulary
         self.phrasings = phrasings
@@ -141,6 +145,9 @@ class Rollout:
         self.expert = expert
         self.greedy = greedy
         self.full_information = full_information
+        if told_instructions and full_information:
+            raise ValueError("told_instructions replaces the instruction; the full-information variant reads none")
+        self.told_instructions = dict(told_instructions or {})
         self.traj_times = trajectory_times(domain.steps_per_attempt, domain.trajectory_stride, end_aligned)
         if full_information and not hasattr(corrections, "full_information"):
             raise TypeError("the full-information variant needs an oracle with full_information(env)")
@@ -192,7 +199,8 @@ class Rollout:
                     batch.instructions[i] = self.corrections.full_information(batch.envs[i])  # type: ignore[union-attr]
                 elif k == 0:
                     rng = instruction_phrasing_rng(seed, batch.task_ids[i]) if self.phrasings != "canonical" else None
-                    batch.instructions[i] = self._say(batch.envs[i].instruction, rng)
+                    own = batch.envs[i].instruction
+                    batch.instructions[i] = self._say(self.told_instructions.get(batch.task_ids[i], own), rng)
             except Exception as err:  # noqa: BLE001
                 batch.fail(i, "reset", err)
         return buffers
