@@ -233,6 +233,16 @@ def cmd_suite_curves(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_suite_swap(args: argparse.Namespace) -> int:
+    """``gpl-dist suite swap``: each trained run's valid completion told other tasks' instructions."""
+    from gpl_dist.app.suite.swap import compute_swaps
+
+    seeds = {int(s) for s in _names(args.seeds)} if args.seeds else None
+    written = compute_swaps(args.suite_out, set(_names(args.only)) if args.only else None, seeds)
+    print(f"{len(written)} run(s) have their instruction-swap control (instruction-swap-valid.json); the report tabulates them")
+    return 0
+
+
 def cmd_suite_restore(args: argparse.Namespace) -> int:
     """``gpl-dist suite restore``: copy a report's archived runs into a suite output that lacks them."""
     from gpl_dist.app.suite.archive import restore_runs
@@ -537,6 +547,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--only", help="comma-separated entry names")
     q.add_argument("--seeds", help="comma-separated training seeds")
     q.set_defaults(func=cmd_suite_curves)
+    q = suite_sub.add_parser("swap", help="each trained run's valid-split completion with its tasks' own instructions "
+                             "and told another task's: does it read its instruction? (skips finished runs)")
+    q.add_argument("suite_out", help="the suite's folder of run dirs")
+    q.add_argument("--only", help="comma-separated entry names")
+    q.add_argument("--seeds", help="comma-separated training seeds")
+    q.set_defaults(func=cmd_suite_swap)
     q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
                              "where 'suite run' then skips them")
     q.add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")

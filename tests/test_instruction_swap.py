@@ -60,3 +60,50 @@ def test_eval_swap_instructions_writes_its_own_file_and_refuses_a_policy_without
     assert direct.completion == report["completion"]
     assert main([*args, "--run-dir", str(runs / "multiroom-no-instruction"), "--out", str(tmp_path)]) == 2
     assert "reads no instruction" in capsys.readouterr().err
+
+
+def test_suite_swap_measures_each_instruction_reading_run_once_and_the_report_tabulates_it(tmp_path):
+    from gpl_dist.app.suite.curves import CurveSettings
+    from gpl_dist.app.suite.report import collect_results, health_of, swap_markdown
+    from gpl_dist.app.suite.rundata import SWAP_FILE
+    from gpl_dist.app.suite.swap import compute_swaps
+
+    out = tmp_path / "suite"
+    for entry in ("multiroom-gpl", "multiroom-no-instruction"):
+        shutil.copytree(ARCHIVE / entry / "seed0", out / entry / "seed0")
+    settings = CurveSettings(tasks=8, num_corrections=1)
+    written = compute_swaps(out, settings=settings, log=lambda _: None)
+    assert written == [out / "multiroom-gpl" / "seed0" / SWAP_FILE]  # no-instruction reads none: skipped
+    record = json.loads(written[0].read_text())
+    assert record["settings"]["split"] == "valid" and record["num_tasks"] == 8
+    assert len(record["own"]["completion"]) == len(record["swapped"]["completion"]) == 2
+    before = written[0].stat().st_mtime_ns
+    assert compute_swaps(out, settings=settings, log=lambda _: None) == written
+    assert written[0].stat().st_mtime_ns == before  # measured once
+    results = collect_results(out, log=lambda _: None)
+    table = swap_markdown(results, health_of(results))
+    row = next(line for line in table.splitlines() if line.startswith("| multiroom-gpl |"))
+    own_last, swapped_last = record["own"]["completion"][-1], record["swapped"]["completion"][-1]
+    assert f"{own_last:.3f}, {swapped_last:.3f}" in row and f"{swapped_last - own_last:+.3f}" in row
+    assert "multiroom-no-instruction" not in table
+
+
+def test_the_report_pairs_the_swap_by_training_seed_and_calls_a_significant_drop_reading(tmp_path):
+    from gpl_dist.app.suite.report import collect_results, health_of, swap_markdown
+    from gpl_dist.app.suite.rundata import SWAP_FILE
+    from gpl_dist.app.suite.stats import mean_ci, t_two_sided_p
+
+    out = tmp_path / "suite"
+    own, swapped = (0.90, 0.95, 0.80), (0.70, 0.74, 0.62)  # a drop of 0.20, 0.21, 0.18
+    for seed, (o, s) in enumerate(zip(own, swapped)):
+        run = out / "multiroom-gpl" / f"seed{seed}"
+        shutil.copytree(ARCHIVE / "multiroom-gpl" / f"seed{seed}", run)
+        (run / SWAP_FILE).write_text(json.dumps({"num_tasks": 250, "own": {"completion": [0.0, o]},
+                                                 "swapped": {"completion": [0.0, s]}}))
+    results = collect_results(out, log=lambda _: None)
+    row = next(line for line in swap_markdown(results, health_of(results)).splitlines()
+               if line.startswith("| multiroom-gpl |"))
+    diff = mean_ci([s - o for o, s in zip(own, swapped)])
+    p = t_two_sided_p(diff.mean / (diff.sd / 3 ** 0.5), 2)
+    assert f"| 3 | 0.000, 0.000 | {sum(own) / 3:.3f}, {sum(swapped) / 3:.3f} | {diff.mean:+.3f} ± {diff.half_width:.3f} |" in row
+    assert f"| {p:.2g} | yes |" in row and p < 0.05

@@ -40,12 +40,14 @@ from gpl_dist.app.suite.evidence import (
     read_json,
     write_checksums,
 )
+from gpl_dist.app.suite.rundata import CURVE_FILE, SWAP_FILE
 from gpl_dist.errors import RunDirError
 
 #: A run's files the archive keeps, beside the evaluation files its record names (and ``run.json``).
 RUN_FILES = RUN_EVIDENCE
-#: Files kept when the run has them: its valid learning curve (``gpl_dist.app.suite.curves``).
-OPTIONAL_RUN_FILES = ("curve-valid.json",)
+#: Files kept when the run has them: its valid learning curve (``gpl_dist.app.suite.curves``) and
+#: instruction-swap control (``gpl_dist.app.suite.swap``).
+OPTIONAL_RUN_FILES = (CURVE_FILE, SWAP_FILE)
 
 
 def _evaluated_runs(suite_out: Path) -> list[Path]:

@@ -27,10 +27,17 @@ from gpl_dist.app.suite.archive import archive_runs, check_archive
 from gpl_dist.app.suite.evidence import read_json
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
-from gpl_dist.app.suite.rundata import RunBudget, RunHealth, learning_curve, run_budget, run_health
+from gpl_dist.app.suite.rundata import (
+    RunBudget,
+    RunHealth,
+    instruction_swap,
+    learning_curve,
+    run_budget,
+    run_health,
+)
 from gpl_dist.app.suite.runs import RECORD_VERSION
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
-from gpl_dist.app.suite.stats import MeanCI, Welch, mean_ci, welch
+from gpl_dist.app.suite.stats import ALPHA, MeanCI, Welch, mean_ci, t_two_sided_p, welch
 from gpl_dist.config import load_yaml_text
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
@@ -453,6 +460,42 @@ def per_seed_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -
     return "\n".join(lines)
 
 
+def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> str:
+    """The instruction-swap control (``gpl_dist.app.suite.swap``, valid split) per entry, over its
+    valid runs: completion with the tasks' own instructions and told another task's, after the
+    first and the last attempt, and the last attempt's paired difference (swapped minus own) with
+    its 95 % t interval and two-sided p over training seeds; runs that are not valid, one a line."""
+    runs: dict[str, dict[int, Path]] = {}
+    for r in results:
+        runs.setdefault(r.entry, {})[r.seed] = r.run_dir
+    lines = ["| entry | runs | first attempt: own, told another's | last attempt: own, told another's | "
+             "last: swapped − own (95 % t) | p | reads its instruction |", "|---|---|---|---|---|---|---|"]
+    outside = []
+    for entry in sorted(runs):
+        swaps = {seed: (d, instruction_swap(d)) for seed, d in sorted(runs[entry].items())}
+        valid = [sw for d, sw in swaps.values() if sw is not None and health[d].valid]
+        outside += [f"- `{entry}` seed {seed} (not valid): last attempt {sw.own[-1]:.3f} with its own instructions, "
+                    f"{sw.swapped[-1]:.3f} told another task's" for seed, (d, sw) in swaps.items()
+                    if sw is not None and not health[d].valid]
+        if not valid:
+            continue
+        mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
+        diff = mean_ci([sw.swapped[-1] - sw.own[-1] for sw in valid])
+        p = None
+        if diff.sd:
+            p = t_two_sided_p(diff.mean / (diff.sd / len(valid) ** 0.5), len(valid) - 1)
+        elif diff.sd == 0.0:
+            p = 1.0 if diff.mean == 0.0 else 0.0
+        reads = "—" if p is None else ("yes" if p < ALPHA and diff.mean < 0 else "no: a tie" if p >= ALPHA else "no")
+        ci = f"{diff.mean:+.3f}" + ("" if diff.half_width is None else f" ± {diff.half_width:.3f}")
+        lines.append(f"| {entry} | {len(valid)} | {mean([sw.own[0] for sw in valid]):.3f}, "
+                     f"{mean([sw.swapped[0] for sw in valid]):.3f} | {mean([sw.own[-1] for sw in valid]):.3f}, "
+                     f"{mean([sw.swapped[-1] for sw in valid]):.3f} | {ci} | {'—' if p is None else f'{p:.2g}'} | {reads} |")
+    if len(lines) == 2:
+        return "No run has its instruction-swap control yet (`gpl-dist suite swap RUNS`)."
+    return "\n".join(lines + ([""] + outside if outside else []))
+
+
 @dataclass(frozen=True)
 class Comparison:
     """One ordering the report tests: ``entry`` after ``k`` corrections against ``other`` after ``other_k``."""
@@ -666,6 +709,12 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
                  "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
                  "every mean above.", health_markdown(health, out)),
+                ("Does each policy read its instruction?", "The instruction-swap control on the valid split "
+                 "(`gpl-dist suite swap`): each run's final weights on 250 valid tasks (one evaluation seed, 5 "
+                 "corrections), with the tasks' own instructions and with each task told the instruction of another "
+                 "task; a policy blind to its instruction scores the same. Means over the entry's valid runs; the "
+                 "difference is paired by training seed ('yes' when it is significantly below 0).",
+                 swap_markdown(every, health)),
                 ("Per training seed", "Each run's own numbers (the mean over its evaluation seeds).",
                  per_seed_markdown(every, health))]
     for title, intro, md in sections:

@@ -25,6 +25,8 @@ from learner.health import EncoderHealth
 
 #: The file the suite's per-round valid evaluation writes into a run dir.
 CURVE_FILE = "curve-valid.json"
+#: A run's instruction-swap control on the valid split (``gpl_dist.app.suite.swap``).
+SWAP_FILE = "instruction-swap-valid.json"
 #: Entries of a state dict that are not trained parameters (BatchNorm's running statistics).
 _NOT_PARAMETERS = ("running_mean", "running_var", "num_batches_tracked")
 
@@ -115,6 +117,35 @@ class LearningCurve:
     train: tuple[tuple[float, ...], ...]
     valid: tuple[tuple[float, ...], ...] = ()
     valid_rounds: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class InstructionSwap:
+    """Valid-split completion of a run's final weights with the tasks' own instructions and told
+    another task's (``gpl_dist.app.suite.swap``).
+
+    Attributes:
+        own: completion after 0..K corrections with their own instructions.
+        swapped: the same, each task told another task's instruction.
+        num_tasks: the valid tasks measured.
+    """
+
+    own: tuple[float, ...]
+    swapped: tuple[float, ...]
+    num_tasks: int
+
+
+def instruction_swap(run_dir: Path) -> InstructionSwap | None:
+    """``InstructionSwap`` of one run dir; None when it has no ``SWAP_FILE``."""
+    path = run_dir / SWAP_FILE
+    if not path.is_file():
+        return None
+    try:
+        payload = json.loads(path.read_text())
+        return InstructionSwap(tuple(float(x) for x in payload["own"]["completion"]),
+                               tuple(float(x) for x in payload["swapped"]["completion"]), int(payload["num_tasks"]))
+    except (ValueError, KeyError, TypeError) as err:
+        raise RunDirError(f"{path}: not an instruction-swap record ({type(err).__name__}: {err})") from None
 
 
 def read_metrics(run_dir: Path) -> list[RoundMetrics]:

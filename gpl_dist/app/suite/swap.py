@@ -1,0 +1,80 @@
+"""The instruction-swap control on the valid split, for every run of a suite (``gpl-dist suite swap``).
+
+Does a trained policy read its instruction? The health count (``learner.health``) cannot say:
+under LeakyReLU a layer whose units are all "never positive" still passes its input at slope 0.01.
+The direct check is to tell each task another task's instruction
+(``learner.evaluate.swapped_instructions``) and compare completion with the completion the same
+weights reach with their own instructions, on the same tasks with the same seed: a policy blind to
+its instruction scores the same. Measured with the learning curve's settings
+(``curves.CurveSettings``: ``CURVE_TASKS`` valid tasks spread evenly, one evaluation seed, 5
+corrections) on the run's final weights, and written into the run dir as ``SWAP_FILE``, which the
+archive keeps and the report tabulates. Runs whose variant reads no instruction are skipped; a
+finished file of the same settings and weights is not computed again.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
+from gpl_dist.app.suite.rundata import SWAP_FILE
+from gpl_dist.errors import RunDirError
+from gpl_dist.variants import READS_INSTRUCTION
+from learner.checkpoint import LATEST
+from learner.evaluate import evaluate_policy, load_trained_policy
+
+
+def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
+    """Write ``run_dir/SWAP_FILE``: completion with the tasks' own instructions and with swapped
+    ones; None for a run whose variant reads no instruction or that has no final weights."""
+    run_dir = Path(run_dir)
+    ckpt = run_dir / "checkpoints" / LATEST
+    if not ckpt.is_file():
+        return None
+    path = run_dir / SWAP_FILE
+    cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
+    if cfg.model.variant not in READS_INSTRUCTION:
+        return None
+    key = {"settings": settings.to_dict(), "round": round_index}
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, json.JSONDecodeError) as err:
+            raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err}); delete it to recompute") from None
+        if isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
+            return path
+    tasks = curve_tasks(cfg.env.domain, settings)
+    measured = {}
+    for told, swap in (("own", False), ("swapped", True)):
+        result = evaluate_policy(cfg, model, num_corrections=settings.num_corrections, seeds=settings.seeds,
+                                 split=settings.split, tasks=tasks, swap_instructions=swap)
+        measured[told] = {"completion": result.completion, "success": result.success}
+    payload = {**key, "variant": cfg.model.variant, "num_tasks": len(tasks), **measured}
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(json.dumps(payload, indent=1))
+    os.replace(tmp, path)
+    own, swapped = measured["own"]["completion"], measured["swapped"]["completion"]
+    log(f"{run_dir}: valid completion after the last attempt {own[-1]:.3f} with its own instructions, "
+        f"{swapped[-1]:.3f} told another task's (first attempt {own[0]:.3f}, {swapped[0]:.3f})")
+    return path
+
+
+def compute_swaps(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
+                  settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
+    """``compute_swap`` for every trained run under ``suite_out/<entry>/seed<k>`` (those with a
+    ``suite-run.json``), optionally only ``entries`` and ``seeds``."""
+    root = Path(suite_out)
+    if not root.is_dir():
+        raise RunDirError(f"no suite output at {root}")
+    written = []
+    for record in sorted(root.glob("*/seed*/suite-run.json")):
+        run_dir = record.parent
+        if entries is not None and run_dir.parent.name not in entries:
+            continue
+        if seeds is not None and int(run_dir.name.removeprefix("seed")) not in seeds:
+            continue
+        if (out := compute_swap(run_dir, settings, log)) is not None:
+            written.append(out)
+    return written
