@@ -106,7 +106,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     import json
     report = json.loads(path.read_text())
     print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
-    print(format_table(report["domain"], result, with_paper=report["reduced_scale"] is None))
+    print(format_table(report["domain"], result,
+                       with_paper=report["reduced_scale"] is None and report["instructions"] == "own"))
     if report["reduced_scale"]:
         print(f"note: {report['reduced_scale']}")
     print(f"wrote {path} and {path.with_suffix('.png')}")
@@ -503,7 +504,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="say instructions and corrections as the oracle does (canonical) or as train/heldout paraphrases")
     p.add_argument("--swap-instructions", action="store_true",
                    help="a control: tell each task another task's instruction (a policy blind to its "
-                        "instruction scores the same as without this); writes eval-...-swapped-instructions.json")
+                        "instruction scores the same as without this); on the valid split unless --split; "
+                        "writes eval-valid-...-swapped-instructions.json")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     _add_foreign_checkpoint(p)
     p.add_argument("--out", help="folder for the evaluation's files (default RUN_DIR; required with --foreign-checkpoint)")

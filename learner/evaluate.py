@@ -164,18 +164,31 @@ def meta_test_rollout(cfg: RunConfig, model: PolicyNetwork, greedy: bool = False
                    told_instructions=told_instructions)
 
 
+#: The rule ``swapped_instructions`` picks partners by (recorded in what measures with it, so that a
+#: changed rule is measured again).
+SWAP_RULE = "most-different-next"
+
+
 def swapped_instructions(domain_name: str, tasks: tuple[int, ...]) -> dict[int, str]:
-    """The instruction-swap control: each task of ``tasks`` is told the instruction of the next
-    task in the list (cyclically) whose instruction differs from its own. Completion with these
-    against completion with their own says how much a policy reads its instruction (a policy
-    blind to it scores the same). Fails when every task has the same instruction."""
+    """The instruction-swap control: each task of ``tasks`` is told another task's instruction, the
+    one most different from its own (fewest words in common, position by position: in multi-room
+    another object and another goal where the list has one), taken from the first task after it in
+    the list (cyclically) that has such an instruction. Completion with these against completion
+    with their own says how much a policy reads its instruction (a policy blind to it scores the
+    same). A function of the task list; fails when every task has the same instruction."""
     domain = get_domain(domain_name)
     own = [domain.make_env(t).instruction for t in tasks]
     if len(set(own)) < 2:
         raise UsageError(f"the {len(tasks)} tasks share one instruction: there is none to swap in")
+
+    def shared(a: str, b: str) -> int:
+        return sum(x == y for x, y in zip(a.lower().split(), b.lower().split()))
+
+    fewest = {a: min(shared(a, b) for b in set(own) if b != a) for a in set(own)}
     told = {}
     for i, t in enumerate(tasks):
-        j = next(j % len(tasks) for j in range(i + 1, i + len(tasks)) if own[j % len(tasks)] != own[i])
+        n = len(tasks)
+        j = next(j % n for j in range(i + 1, i + n) if own[j % n] != own[i] and shared(own[i], own[j % n]) == fewest[own[i]])
         told[t] = own[j]
     return told
 
@@ -316,7 +329,8 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     ``report_stem``) into the run dir (or ``out_dir``), atomically, and returns the result and the
     JSON's path. A checkpoint of another run, domain or model is refused unless
     ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir).
-    ``swap_instructions`` tells each task another task's instruction (``swapped_instructions``)."""
+    ``swap_instructions`` tells each task another task's instruction (``swapped_instructions``), on
+    the valid split unless ``split`` says otherwise (a diagnostic: choose on valid)."""
     run_dir = Path(run_dir)
     target = Path(out_dir) if out_dir is not None else run_dir
     if foreign_checkpoint:
@@ -340,7 +354,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     if ckpt_run is None and not foreign_checkpoint:  # saved before run ids: the run's own (checked above)
         ckpt_run = resolve_identity(run_dir, cfg.buffer.location or str(run_dir / "buffer")).run_id
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
-    split = split or cfg.eval.split
+    split = split or ("valid" if swap_instructions else cfg.eval.split)
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
     seeds = tuple(seeds or cfg.eval.seeds)
     max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks
@@ -363,7 +377,7 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
                "seeds": list(seeds), "max_tasks": max_tasks,
                "greedy_actions": greedy, "phrasings": phrasings, "trained_with_paraphrases": cfg.model.paraphrases,
-               "instructions": "swapped" if swap_instructions else "own",
+               "instructions": f"swapped ({SWAP_RULE})" if swap_instructions else "own",
                "num_tasks": result.num_tasks,
                "completion": result.completion, "completion_std": result.completion_std,
                "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
@@ -372,9 +386,10 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "reduced_scale": reduced_scale(cfg)}
     path = target / f"{stem}.json"
     png = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{threading.get_ident()}.png")
+    told = ", told other tasks' instructions" if swap_instructions else ""
     plot(cfg.env.domain, result, png,
-         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}",
-         with_paper=payload["reduced_scale"] is None)
+         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}{told}",
+         with_paper=payload["reduced_scale"] is None and not swap_instructions)
     png.replace(path.with_suffix(".png"))
     write_atomic(path, (json.dumps(payload, indent=1) + "\n").encode())
     return result, path

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from gpl_dist.app.policy import load_policy
+from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
 from gpl_dist.cli import main
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
@@ -27,11 +28,18 @@ def runs(tmp_path_factory) -> Path:
     return root
 
 
-def test_each_task_is_told_a_differing_instruction_of_another_task():
+def test_each_task_is_told_the_most_different_instruction_of_another_task():
     own = {t: get_domain("multiroom").make_env(t).instruction for t in TASKS}
     told = swapped_instructions("multiroom", TASKS)
     assert set(told) == set(TASKS)
-    assert all(told[t] != own[t] and told[t] in own.values() for t in TASKS)
+    differing = lambda a, b: sum(x != y for x, y in zip(a.split(), b.split()))  # noqa: E731
+    for t in TASKS:
+        assert told[t] in own.values()
+        assert differing(own[t], told[t]) == max(differing(own[t], o) for o in own.values())
+    spread = curve_tasks("multiroom", CurveSettings())  # the suite's: every k-th valid task
+    told_spread = swapped_instructions("multiroom", spread)
+    for t in spread:  # "Move <colour> <shape> to <colour> square": another object and another goal
+        assert differing(get_domain("multiroom").make_env(t).instruction, told_spread[t]) == 3
     assert swapped_instructions("multiroom", TASKS) == told  # a function of the task list
     same = tuple(t for t in TASKS if own[t] == own[TASKS[0]])[:3]
     with pytest.raises(UsageError, match="share one instruction"):
@@ -50,10 +58,10 @@ def test_a_rollout_conditions_on_the_told_instruction(runs):
 
 
 def test_eval_swap_instructions_writes_its_own_file_and_refuses_a_policy_without_instruction(runs, tmp_path, capsys):
-    args = ["eval", "--split", "valid", "--max-tasks", "8", "--seeds", "0", "--corrections", "1", "--swap-instructions"]
+    args = ["eval", "--max-tasks", "8", "--seeds", "0", "--corrections", "1", "--swap-instructions"]
     assert main([*args, "--run-dir", str(runs / "multiroom-gpl"), "--out", str(tmp_path)]) == 0
     report = json.loads((tmp_path / "eval-valid-c1-seeds0-first8-swapped-instructions.json").read_text())
-    assert report["instructions"] == "swapped" and report["split"] == "valid" and report["num_tasks"] == 8
+    assert report["instructions"].startswith("swapped") and report["split"] == "valid" and report["num_tasks"] == 8
     policy = load_policy(runs / "multiroom-gpl")
     direct = evaluate_policy(policy.cfg, policy.model, num_corrections=1, seeds=(0,), split="valid", max_tasks=8,
                              swap_instructions=True)
@@ -63,17 +71,24 @@ def test_eval_swap_instructions_writes_its_own_file_and_refuses_a_policy_without
 
 
 def test_suite_swap_measures_each_instruction_reading_run_once_and_the_report_tabulates_it(tmp_path):
-    from gpl_dist.app.suite.curves import CurveSettings
     from gpl_dist.app.suite.report import collect_results, health_of, swap_markdown
     from gpl_dist.app.suite.rundata import SWAP_FILE
     from gpl_dist.app.suite.swap import compute_swaps
 
     out = tmp_path / "suite"
-    for entry in ("multiroom-gpl", "multiroom-no-instruction"):
+    for entry in ("multiroom-gpl", "multiroom-no-instruction", "multiroom-instruction"):
         shutil.copytree(ARCHIVE / entry / "seed0", out / entry / "seed0")
+    training = out / "multiroom-gpl" / "seed1"  # a run still training: its record names no evaluation yet
+    shutil.copytree(ARCHIVE / "multiroom-gpl" / "seed1", training)
+    record = json.loads((training / "suite-run.json").read_text())
+    (training / "suite-run.json").write_text(json.dumps({**record, "evaluations": {}}))
     settings = CurveSettings(tasks=8, num_corrections=1)
+    with pytest.raises(UsageError, match="valid-split diagnostic"):
+        compute_swaps(out, settings=CurveSettings(split="test"), log=lambda _: None)
     written = compute_swaps(out, settings=settings, log=lambda _: None)
-    assert written == [out / "multiroom-gpl" / "seed0" / SWAP_FILE]  # no-instruction reads none: skipped
+    assert written == [out / "multiroom-gpl" / "seed0" / SWAP_FILE, out / "multiroom-instruction" / "seed0" / SWAP_FILE]
+    one = json.loads(written[1].read_text())
+    assert len(one["own"]["completion"]) == 1  # one attempt: the instruction alone
     record = json.loads(written[0].read_text())
     assert record["settings"]["split"] == "valid" and record["num_tasks"] == 8
     assert len(record["own"]["completion"]) == len(record["swapped"]["completion"]) == 2
@@ -86,24 +101,41 @@ def test_suite_swap_measures_each_instruction_reading_run_once_and_the_report_ta
     own_last, swapped_last = record["own"]["completion"][-1], record["swapped"]["completion"][-1]
     assert f"{own_last:.3f}, {swapped_last:.3f}" in row and f"{swapped_last - own_last:+.3f}" in row
     assert "multiroom-no-instruction" not in table
+    assert "| multiroom-instruction | 1 |" in table and "(one attempt)" in table
+    (out / "multiroom-gpl" / "seed0" / SWAP_FILE).write_text(json.dumps({**record, "weights_sha256": "0" * 64}))
+    stale = swap_markdown(results, health_of(results))
+    assert "| multiroom-gpl |" not in stale and "`multiroom-gpl` seed 0: measured other weights" in stale
+    from gpl_dist.app.suite.archive import archive_runs, restore_runs
+
+    archive_runs(out, tmp_path / "archive", log=lambda _: None)  # the archive keeps it under its checksums
+    kept = tmp_path / "archive" / "multiroom-instruction" / "seed0" / SWAP_FILE
+    assert kept.read_bytes() == written[1].read_bytes()
+    sums = json.loads((tmp_path / "archive" / "checksums.json").read_text())["files"]
+    assert f"multiroom-instruction/seed0/{SWAP_FILE}" in sums
+    restore_runs(tmp_path / "archive", tmp_path / "restored", log=lambda _: None)
+    assert (tmp_path / "restored" / "multiroom-instruction" / "seed0" / SWAP_FILE).read_bytes() == kept.read_bytes()
 
 
 def test_the_report_pairs_the_swap_by_training_seed_and_calls_a_significant_drop_reading(tmp_path):
+    from gpl_dist.app.suite.evidence import sha256_file
     from gpl_dist.app.suite.report import collect_results, health_of, swap_markdown
     from gpl_dist.app.suite.rundata import SWAP_FILE
     from gpl_dist.app.suite.stats import mean_ci, t_two_sided_p
+    from learner.evaluate import SWAP_RULE
 
     out = tmp_path / "suite"
     own, swapped = (0.90, 0.95, 0.80), (0.70, 0.74, 0.62)  # a drop of 0.20, 0.21, 0.18
     for seed, (o, s) in enumerate(zip(own, swapped)):
         run = out / "multiroom-gpl" / f"seed{seed}"
         shutil.copytree(ARCHIVE / "multiroom-gpl" / f"seed{seed}", run)
-        (run / SWAP_FILE).write_text(json.dumps({"num_tasks": 250, "own": {"completion": [0.0, o]},
-                                                 "swapped": {"completion": [0.0, s]}}))
+        (run / SWAP_FILE).write_text(json.dumps({
+            "settings": {"split": "valid"}, "rule": SWAP_RULE, "num_tasks": 250,
+            "weights_sha256": sha256_file(run / "checkpoints" / "latest.pt"),
+            "own": {"completion": [0.0, o]}, "swapped": {"completion": [0.0, s]}}))
     results = collect_results(out, log=lambda _: None)
     row = next(line for line in swap_markdown(results, health_of(results)).splitlines()
                if line.startswith("| multiroom-gpl |"))
     diff = mean_ci([s - o for o, s in zip(own, swapped)])
     p = t_two_sided_p(diff.mean / (diff.sd / 3 ** 0.5), 2)
-    assert f"| 3 | 0.000, 0.000 | {sum(own) / 3:.3f}, {sum(swapped) / 3:.3f} | {diff.mean:+.3f} ± {diff.half_width:.3f} |" in row
-    assert f"| {p:.2g} | yes |" in row and p < 0.05
+    assert f"| 3 | 0.000, 0.000 | +0.000 ± 0.000, p 1 | {sum(own) / 3:.3f}, {sum(swapped) / 3:.3f} | " in row
+    assert f"| {diff.mean:+.3f} ± {diff.half_width:.3f}, p {p:.2g} | yes |" in row and p < 0.05

@@ -3,8 +3,10 @@
 Every number is read from the runs' ``eval*.json`` files (through each run's ``suite-run.json``,
 which names the file of each evaluation); none is typed here except the paper's own, in
 ``PAPER_TABLES`` (GPL's from each domain's ``DomainSpec.paper_completion``). A cell is the mean
-over **training** seeds of the run's mean completion over its evaluation seeds, ± the standard
-deviation over training seeds (the last column says which seeds; one seed has no ±). Rows of
+over **training** seeds of the run's mean completion over its evaluation seeds, ± the half-width
+of its 95 % t interval over training seeds (the last column says which seeds; one seed has no ±).
+The instruction-swap section reads each run's ``instruction-swap-valid.json`` instead
+(``gpl_dist.app.suite.swap``, valid split). Rows of
 methods not built, or entries not run yet, are kept with the paper's number and a dash, so the
 report always shows every row of the paper.
 
@@ -24,10 +26,11 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.app.suite.archive import archive_runs, check_archive
-from gpl_dist.app.suite.evidence import read_json
+from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.rundata import (
+    SWAP_FILE,
     RunBudget,
     RunHealth,
     instruction_swap,
@@ -41,6 +44,8 @@ from gpl_dist.app.suite.stats import ALPHA, MeanCI, Welch, mean_ci, t_two_sided_
 from gpl_dist.config import load_yaml_text
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
+from learner.checkpoint import LATEST
+from learner.evaluate import SWAP_RULE
 
 #: The report folder's archive of the runs it reads (``gpl_dist.app.suite.archive``).
 ARCHIVE_DIR = "runs"
@@ -460,40 +465,72 @@ def per_seed_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -
     return "\n".join(lines)
 
 
+def _paired(own: list[float], swapped: list[float]) -> tuple[MeanCI, float | None]:
+    """The paired difference ``swapped - own`` over training seeds: its mean with the 95 % t
+    interval, and the two-sided p of the one-sample t test against 0 (None for one seed)."""
+    diff = mean_ci([s - o for o, s in zip(own, swapped)])
+    if diff.sd is None:
+        return diff, None
+    if diff.sd == 0.0:
+        return diff, 1.0 if diff.mean == 0.0 else 0.0
+    return diff, t_two_sided_p(diff.mean / (diff.sd / diff.n ** 0.5), diff.n - 1)
+
+
+def _paired_text(diff: MeanCI, p: float | None) -> str:
+    ci = f"{diff.mean:+.3f}" + ("" if diff.half_width is None else f" ± {diff.half_width:.3f}")
+    return f"{ci}, p {'—' if p is None else f'{p:.2g}'}"
+
+
 def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> str:
     """The instruction-swap control (``gpl_dist.app.suite.swap``, valid split) per entry, over its
     valid runs: completion with the tasks' own instructions and told another task's, after the
-    first and the last attempt, and the last attempt's paired difference (swapped minus own) with
-    its 95 % t interval and two-sided p over training seeds; runs that are not valid, one a line."""
+    first and the last attempt, each with the paired difference (swapped minus own) over training
+    seeds, its 95 % t interval and two-sided p. Below the table, one a line: runs that are not
+    valid, runs measured on other weights or with another partner rule (left out), and valid runs
+    not measured yet."""
     runs: dict[str, dict[int, Path]] = {}
     for r in results:
         runs.setdefault(r.entry, {})[r.seed] = r.run_dir
-    lines = ["| entry | runs | first attempt: own, told another's | last attempt: own, told another's | "
-             "last: swapped − own (95 % t) | p | reads its instruction |", "|---|---|---|---|---|---|---|"]
-    outside = []
+    lines = ["| entry | runs | first attempt: own, told another's | first: swapped − own (95 % t), p | "
+             "last attempt: own, told another's | last: swapped − own (95 % t), p | reads its instruction |",
+             "|---|---|---|---|---|---|---|"]
+    notes: list[str] = []
+    mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
     for entry in sorted(runs):
-        swaps = {seed: (d, instruction_swap(d)) for seed, d in sorted(runs[entry].items())}
-        valid = [sw for d, sw in swaps.values() if sw is not None and health[d].valid]
-        outside += [f"- `{entry}` seed {seed} (not valid): last attempt {sw.own[-1]:.3f} with its own instructions, "
-                    f"{sw.swapped[-1]:.3f} told another task's" for seed, (d, sw) in swaps.items()
-                    if sw is not None and not health[d].valid]
-        if not valid:
+        measured, unmeasured = [], []
+        for seed, run_dir in sorted(runs[entry].items()):
+            sw = instruction_swap(run_dir)
+            if sw is None:
+                unmeasured.append(seed)
+                continue
+            if sw.split != "valid":
+                raise RunDirError(f"{run_dir / SWAP_FILE} measured the {sw.split} split: the swap control reads valid only")
+            if sw.rule != SWAP_RULE or sw.weights_sha256 != sha256_file(run_dir / "checkpoints" / LATEST):
+                notes.append(f"- `{entry}` seed {seed}: measured other weights or with another partner rule "
+                             f"than `{SWAP_RULE}`; left out (measure it again with `gpl-dist suite swap`)")
+            elif not health[run_dir].valid:
+                notes.append(f"- `{entry}` seed {seed} (not valid, left out): first attempt {sw.own[0]:.3f} with its "
+                             f"own instructions, {sw.swapped[0]:.3f} told another task's; last {sw.own[-1]:.3f}, "
+                             f"{sw.swapped[-1]:.3f}")
+            else:
+                measured.append(sw)
+        if unmeasured and measured:
+            notes.append(f"- `{entry}`: seed(s) {', '.join(map(str, unmeasured))} not measured yet")
+        if not measured:
             continue
-        mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
-        diff = mean_ci([sw.swapped[-1] - sw.own[-1] for sw in valid])
-        p = None
-        if diff.sd:
-            p = t_two_sided_p(diff.mean / (diff.sd / len(valid) ** 0.5), len(valid) - 1)
-        elif diff.sd == 0.0:
-            p = 1.0 if diff.mean == 0.0 else 0.0
-        reads = "—" if p is None else ("yes" if p < ALPHA and diff.mean < 0 else "no: a tie" if p >= ALPHA else "no")
-        ci = f"{diff.mean:+.3f}" + ("" if diff.half_width is None else f" ± {diff.half_width:.3f}")
-        lines.append(f"| {entry} | {len(valid)} | {mean([sw.own[0] for sw in valid]):.3f}, "
-                     f"{mean([sw.swapped[0] for sw in valid]):.3f} | {mean([sw.own[-1] for sw in valid]):.3f}, "
-                     f"{mean([sw.swapped[-1] for sw in valid]):.3f} | {ci} | {'—' if p is None else f'{p:.2g}'} | {reads} |")
+        cells, verdicts = [], []
+        for k in ((0, -1) if len(measured[0].own) > 1 else (0,)):
+            own, swapped = [sw.own[k] for sw in measured], [sw.swapped[k] for sw in measured]
+            diff, p = _paired(own, swapped)
+            cells += [f"{mean(own):.3f}, {mean(swapped):.3f}", _paired_text(diff, p)]
+            verdicts.append(None if p is None else p < ALPHA and diff.mean < 0)
+        if len(cells) == 2:
+            cells += ["(one attempt)", "(one attempt)"]
+        reads = "—" if None in verdicts else "yes" if any(verdicts) else "no (a tie, or a rise)"
+        lines.append(f"| {entry} | {len(measured)} | {' | '.join(cells)} | {reads} |")
     if len(lines) == 2:
-        return "No run has its instruction-swap control yet (`gpl-dist suite swap RUNS`)."
-    return "\n".join(lines + ([""] + outside if outside else []))
+        return "No run has its instruction-swap control yet (`gpl-dist suite swap OUT`)."
+    return "\n".join(lines + ([""] + notes if notes else []))
 
 
 @dataclass(frozen=True)
@@ -710,10 +747,11 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
                  "every mean above.", health_markdown(health, out)),
                 ("Does each policy read its instruction?", "The instruction-swap control on the valid split "
-                 "(`gpl-dist suite swap`): each run's final weights on 250 valid tasks (one evaluation seed, 5 "
-                 "corrections), with the tasks' own instructions and with each task told the instruction of another "
-                 "task; a policy blind to its instruction scores the same. Means over the entry's valid runs; the "
-                 "difference is paired by training seed ('yes' when it is significantly below 0).",
+                 "(`gpl-dist suite swap`, its settings in each run's `instruction-swap-valid.json`): each run's final "
+                 "weights with the tasks' own instructions and with each task told the most different instruction of "
+                 "another task; a policy blind to its instruction scores the same. Means over the entry's valid runs; "
+                 "each difference is paired by training seed ('yes' when one is significantly below 0; '—': one "
+                 "seed, no test).",
                  swap_markdown(every, health)),
                 ("Per training seed", "Each run's own numbers (the mean over its evaluation seeds).",
                  per_seed_markdown(every, health))]
@@ -761,8 +799,9 @@ _INTRO = ("Written by `gpl-dist suite report {suite_out}` from the runs' `eval*.
           "report in `runs/` with each run's config, metrics and final weights (with those archived by earlier "
           "reports into this folder). Each cell: our mean "
           "completion over training seeds (each seed's own value is its mean over the evaluation seeds, see Evaluation "
-          "settings), ± the standard deviation over training seeds, and the paper's number in parentheses. '—': not "
-          "run yet or not built; the last column says which.")
+          "settings), ± the half-width of its 95 % t interval over training seeds, and the paper's number in "
+          "parentheses. '—': not run yet or not built; the last column says which. The instruction-swap control "
+          "reads each run's `instruction-swap-valid.json` (valid split), archived beside its eval files.")
 _INTRO_HTML = _INTRO.replace("`", "")
 
 

@@ -127,12 +127,16 @@ class InstructionSwap:
     Attributes:
         own: completion after 0..K corrections with their own instructions.
         swapped: the same, each task told another task's instruction.
-        num_tasks: the valid tasks measured.
+        split: the split measured (valid).
+        rule: how partners were chosen (``learner.evaluate.SWAP_RULE``).
+        weights_sha256: the SHA-256 of the weights measured (``checkpoints/latest.pt`` then).
     """
 
     own: tuple[float, ...]
     swapped: tuple[float, ...]
-    num_tasks: int
+    split: str
+    rule: str
+    weights_sha256: str
 
 
 def instruction_swap(run_dir: Path) -> InstructionSwap | None:
@@ -143,7 +147,8 @@ def instruction_swap(run_dir: Path) -> InstructionSwap | None:
     try:
         payload = json.loads(path.read_text())
         return InstructionSwap(tuple(float(x) for x in payload["own"]["completion"]),
-                               tuple(float(x) for x in payload["swapped"]["completion"]), int(payload["num_tasks"]))
+                               tuple(float(x) for x in payload["swapped"]["completion"]),
+                               str(payload["settings"]["split"]), str(payload["rule"]), str(payload["weights_sha256"]))
     except (ValueError, KeyError, TypeError) as err:
         raise RunDirError(f"{path}: not an instruction-swap record ({type(err).__name__}: {err})") from None
 

@@ -8,8 +8,10 @@ weights reach with their own instructions, on the same tasks with the same seed:
 its instruction scores the same. Measured with the learning curve's settings
 (``curves.CurveSettings``: ``CURVE_TASKS`` valid tasks spread evenly, one evaluation seed, 5
 corrections) on the run's final weights, and written into the run dir as ``SWAP_FILE``, which the
-archive keeps and the report tabulates. Runs whose variant reads no instruction are skipped; a
-finished file of the same settings and weights is not computed again.
+archive keeps and the report tabulates. Runs whose variant reads no instruction, and runs not
+evaluated yet (still training), are skipped; a file of the same settings, partner rule and weights
+(their SHA-256) is not computed again, and the report leaves out a file whose weights are not the
+run's.
 """
 
 from __future__ import annotations
@@ -19,25 +21,29 @@ import os
 from pathlib import Path
 
 from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
+from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rundata import SWAP_FILE
-from gpl_dist.errors import RunDirError
+from gpl_dist.errors import RunDirError, UsageError
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST
-from learner.evaluate import evaluate_policy, load_trained_policy
+from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy
 
 
 def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
     """Write ``run_dir/SWAP_FILE``: completion with the tasks' own instructions and with swapped
-    ones; None for a run whose variant reads no instruction or that has no final weights."""
+    ones; None for a run whose variant reads no instruction or that is not evaluated yet (its
+    ``suite-run.json`` records no evaluation: it may still be training)."""
+    if settings.split != "valid":
+        raise UsageError(f"the instruction-swap control is a valid-split diagnostic, not run on '{settings.split}'")
     run_dir = Path(run_dir)
     ckpt = run_dir / "checkpoints" / LATEST
-    if not ckpt.is_file():
+    if not ckpt.is_file() or not read_json(run_dir / "suite-run.json").get("evaluations"):
         return None
     path = run_dir / SWAP_FILE
     cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
     if cfg.model.variant not in READS_INSTRUCTION:
         return None
-    key = {"settings": settings.to_dict(), "round": round_index}
+    key = {"settings": settings.to_dict(), "rule": SWAP_RULE, "round": round_index, "weights_sha256": sha256_file(ckpt)}
     if path.is_file():
         try:
             old = json.loads(path.read_text())
