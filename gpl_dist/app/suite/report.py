@@ -526,7 +526,7 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
             verdicts.append(None if p is None else p < ALPHA and diff.mean < 0)
         if len(cells) == 2:
             cells += ["(one attempt)", "(one attempt)"]
-        reads = "—" if None in verdicts else "yes" if any(verdicts) else "no (a tie, or a rise)"
+        reads = "—" if None in verdicts else "yes" if any(verdicts) else "no measurable drop"
         lines.append(f"| {entry} | {len(measured)} | {' | '.join(cells)} | {reads} |")
     if len(lines) == 2:
         return "No run has its instruction-swap control yet (`gpl-dist suite swap OUT`)."
