@@ -378,3 +378,22 @@ def test_model_selection_reads_the_valid_split_only():
     for run in plan(recipe, "unused"):
         cfg = run.config(recipe)
         assert cfg.eval.split == "valid" and "test" not in cfg.env.train_split, run.entry.name
+
+
+def test_a_run_left_out_as_not_valid_is_not_listed_as_not_run(tmp_path):
+    """The archived all-corrections seed 0 failed the health gate: the report leaves it out of the
+    means and says so in its row, but it was run, so 'Not run yet' names only seeds never run."""
+    import shutil
+
+    from gpl_dist.app.suite.report import write_report
+
+    out = tmp_path / "out"
+    for seed in (0, 1):
+        shutil.copytree(REPO / "docs" / "paper-report" / "runs" / "multiroom-all-corrections" / f"seed{seed}",
+                        out / "multiroom-all-corrections" / f"seed{seed}")
+    shutil.copyfile(REPO / "configs" / "suites" / "paper.yaml", out / "suite.yaml")
+    md = write_report(out, tmp_path / "report")[0].read_text()
+    row = next(line for line in md.splitlines() if line.startswith("| All |"))
+    assert "left out: 0" in row and "not run yet: 2, 3, 4, 5" in row
+    not_run = md.split("## Not run yet", 1)[1].split("\n## ", 1)[0]
+    assert "- `multiroom-all-corrections`: training seed(s) 2, 3, 4, 5" in not_run.splitlines()

@@ -719,7 +719,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     excluded = [r for r in every if r not in results]
     planned = planned_seeds(archive / "suite.yaml")  # the suite's latest copy: archived from suite_out just above
     parts, html_parts = [_INTRO.format(suite_out=suite_out)], [f"<p>{html.escape(_INTRO_HTML.format(suite_out=suite_out))}</p>"]
-    if missing := not_run(results, planned):
+    if missing := not_run(every, planned):  # a run left out as not valid was run
         items = [f"`{entry}`: training seed(s) {', '.join(map(str, seeds))}" for entry, seeds in missing]
         parts += ["## Not run yet", _NOT_RUN_INTRO + "\n\n" + "\n".join(f"- {item}" for item in items)]
         html_parts += ["<h2>Not run yet</h2>", f"<p>{html.escape(_NOT_RUN_INTRO.replace('`', ''))}</p><ul>"
