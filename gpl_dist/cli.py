@@ -543,18 +543,16 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("suite_out", help="the suite's folder of run dirs")
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
     q.set_defaults(func=cmd_suite_report)
-    q = suite_sub.add_parser("curves", help="each trained run's valid-split completion after every round "
-                             "(its per-round weights; resumes, skips finished curves)")
-    q.add_argument("suite_out", help="the suite's folder of run dirs")
-    q.add_argument("--only", help="comma-separated entry names")
-    q.add_argument("--seeds", help="comma-separated training seeds")
-    q.set_defaults(func=cmd_suite_curves)
-    q = suite_sub.add_parser("swap", help="each trained run's valid-split completion with its tasks' own instructions "
-                             "and told another task's: does it read its instruction? (skips finished runs)")
-    q.add_argument("suite_out", help="the suite's folder of run dirs")
-    q.add_argument("--only", help="comma-separated entry names")
-    q.add_argument("--seeds", help="comma-separated training seeds")
-    q.set_defaults(func=cmd_suite_swap)
+    for name, text, func in (
+            ("curves", "each trained run's valid-split completion after every round (its per-round weights; "
+             "resumes, skips finished curves)", cmd_suite_curves),
+            ("swap", "each trained run's valid-split completion with its tasks' own instructions and told another "
+             "task's: does it read its instruction? (skips finished runs)", cmd_suite_swap)):
+        q = suite_sub.add_parser(name, help=text)
+        q.add_argument("suite_out", help="the suite's folder of run dirs")
+        q.add_argument("--only", help="comma-separated entry names")
+        q.add_argument("--seeds", help="comma-separated training seeds")
+        q.set_defaults(func=func)
     q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
                              "where 'suite run' then skips them")
     q.add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")

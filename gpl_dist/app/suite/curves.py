@@ -100,20 +100,19 @@ def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings()
     return path
 
 
-def compute_curves(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
-                   settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
-    """``compute_curve`` for every trained run under ``suite_out/<entry>/seed<k>`` (those with a
-    ``suite-run.json``), optionally only ``entries`` and ``seeds``."""
+def suite_run_dirs(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None) -> list[Path]:
+    """The run dirs ``suite_out/<entry>/seed<k>`` that have a ``suite-run.json``, in order;
+    optionally only ``entries`` and ``seeds``."""
     root = Path(suite_out)
     if not root.is_dir():
         raise RunDirError(f"no suite output at {root}")
-    written = []
-    for record in sorted(root.glob("*/seed*/suite-run.json")):
-        run_dir = record.parent
-        if entries is not None and run_dir.parent.name not in entries:
-            continue
-        if seeds is not None and int(run_dir.name.removeprefix("seed")) not in seeds:
-            continue
-        if (out := compute_curve(run_dir, settings, log)) is not None:
-            written.append(out)
-    return written
+    return [record.parent for record in sorted(root.glob("*/seed*/suite-run.json"))
+            if (entries is None or record.parent.parent.name in entries)
+            and (seeds is None or int(record.parent.name.removeprefix("seed")) in seeds)]
+
+
+def compute_curves(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
+                   settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
+    """``compute_curve`` for every trained run of ``suite_run_dirs``."""
+    return [out for run_dir in suite_run_dirs(suite_out, entries, seeds)
+            if (out := compute_curve(run_dir, settings, log)) is not None]

@@ -20,7 +20,7 @@ import json
 import os
 from pathlib import Path
 
-from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
+from gpl_dist.app.suite.curves import CurveSettings, curve_tasks, suite_run_dirs
 from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rundata import SWAP_FILE
 from gpl_dist.errors import RunDirError, UsageError
@@ -69,18 +69,7 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
 
 def compute_swaps(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
                   settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
-    """``compute_swap`` for every trained run under ``suite_out/<entry>/seed<k>`` (those with a
-    ``suite-run.json``), optionally only ``entries`` and ``seeds``."""
-    root = Path(suite_out)
-    if not root.is_dir():
-        raise RunDirError(f"no suite output at {root}")
-    written = []
-    for record in sorted(root.glob("*/seed*/suite-run.json")):
-        run_dir = record.parent
-        if entries is not None and run_dir.parent.name not in entries:
-            continue
-        if seeds is not None and int(run_dir.name.removeprefix("seed")) not in seeds:
-            continue
-        if (out := compute_swap(run_dir, settings, log)) is not None:
-            written.append(out)
-    return written
+    """``compute_swap`` for every run of ``curves.suite_run_dirs`` (optionally only ``entries``
+    and ``seeds``)."""
+    return [out for run_dir in suite_run_dirs(suite_out, entries, seeds)
+            if (out := compute_swap(run_dir, settings, log)) is not None]
