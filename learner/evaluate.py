@@ -185,11 +185,10 @@ def swapped_instructions(domain_name: str, tasks: tuple[int, ...]) -> dict[int, 
         return sum(x == y for x, y in zip(a.lower().split(), b.lower().split()))
 
     fewest = {a: min(shared(a, b) for b in set(own) if b != a) for a in set(own)}
-    told = {}
+    n, told = len(tasks), {}
     for i, t in enumerate(tasks):
-        n = len(tasks)
-        j = next(j % n for j in range(i + 1, i + n) if own[j % n] != own[i] and shared(own[i], own[j % n]) == fewest[own[i]])
-        told[t] = own[j]
+        told[t] = next(own[j % n] for j in range(i + 1, i + n)
+                       if own[j % n] != own[i] and shared(own[i], own[j % n]) == fewest[own[i]])
     return told
 
 

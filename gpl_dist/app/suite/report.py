@@ -495,7 +495,6 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
              "last attempt: own, told another's | last: swapped − own (95 % t), p | reads its instruction |",
              "|---|---|---|---|---|---|---|"]
     notes: list[str] = []
-    mean = lambda xs: sum(xs) / len(xs)  # noqa: E731
     for entry in sorted(runs):
         measured, unmeasured = [], []
         for seed, run_dir in sorted(runs[entry].items()):
@@ -522,7 +521,7 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
         for k in ((0, -1) if len(measured[0].own) > 1 else (0,)):
             own, swapped = [sw.own[k] for sw in measured], [sw.swapped[k] for sw in measured]
             diff, p = _paired(own, swapped)
-            cells += [f"{mean(own):.3f}, {mean(swapped):.3f}", _paired_text(diff, p)]
+            cells += [f"{statistics.fmean(own):.3f}, {statistics.fmean(swapped):.3f}", _paired_text(diff, p)]
             verdicts.append(None if p is None else p < ALPHA and diff.mean < 0)
         if len(cells) == 2:
             cells += ["(one attempt)", "(one attempt)"]

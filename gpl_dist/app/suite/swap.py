@@ -17,7 +17,6 @@ run's.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 from gpl_dist.app.suite.curves import CurveSettings, curve_tasks, suite_run_dirs
@@ -26,7 +25,7 @@ from gpl_dist.app.suite.rundata import SWAP_FILE
 from gpl_dist.errors import RunDirError, UsageError
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST
-from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy
+from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy, write_atomic
 
 
 def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
@@ -58,9 +57,7 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
                                  split=settings.split, tasks=tasks, swap_instructions=swap)
         measured[told] = {"completion": result.completion, "success": result.success}
     payload = {**key, "variant": cfg.model.variant, "num_tasks": len(tasks), **measured}
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(payload, indent=1))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(payload, indent=1).encode())
     own, swapped = measured["own"]["completion"], measured["swapped"]["completion"]
     log(f"{run_dir}: valid completion after the last attempt {own[-1]:.3f} with its own instructions, "
         f"{swapped[-1]:.3f} told another task's (first attempt {own[0]:.3f}, {swapped[0]:.3f})")
