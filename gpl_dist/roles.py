@@ -110,6 +110,11 @@ class DomainSpec:
             raise ValueError(f"domain '{self.name}' declares no paraphrases")
         return self.vocabulary.extended(self.paraphrases.words("train"))
 
+    def instruction_of(self, task_id: int) -> str:
+        """The instruction of ``task_id`` (its env's ``TaskEnv.instruction``)."""
+        env: Any = self.make_env(task_id)
+        return str(env.instruction)
+
     @property
     def trajectory_samples(self) -> int:
         """Number of states the correction module reads from one earlier attempt."""

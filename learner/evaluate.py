@@ -177,7 +177,7 @@ def swapped_instructions(domain_name: str, tasks: tuple[int, ...]) -> dict[int, 
     with their own says how much a policy reads its instruction (a policy blind to it scores the
     same). A function of the task list; fails when every task has the same instruction."""
     domain = get_domain(domain_name)
-    own = [domain.make_env(t).instruction for t in tasks]
+    own = [domain.instruction_of(t) for t in tasks]
     if len(set(own)) < 2:
         raise UsageError(f"the {len(tasks)} tasks share one instruction: there is none to swap in")
 

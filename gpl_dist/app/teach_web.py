@@ -56,7 +56,6 @@ from gpl_dist.app.teaching import (
     TeachingError,
     check_correction,
     episode_log_bytes,
-    instruction_of,
     write_episode_log,
 )
 from gpl_dist.splits import split_tasks
@@ -259,7 +258,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
                 "examples": list(phrasings[:: max(1, len(phrasings) // 6)][:6]),
-                "example_instruction": instruction_of(domain, split_tasks(domain.name, split)[0])}
+                "example_instruction": domain.instruction_of(split_tasks(domain.name, split)[0])}
 
     @app.post("/api/check", response_model=CheckView)
     def check(body: CheckRequest) -> CheckView:

@@ -227,7 +227,7 @@ class Teacher:
             return int(tasks[int(rng.integers(len(tasks)))])
         by_instruction: dict[str, list[int]] = {}
         for t in tasks:
-            by_instruction.setdefault(instruction_of(d, t), []).append(int(t))
+            by_instruction.setdefault(d.instruction_of(t), []).append(int(t))
         check = check_correction(d, instruction, "instruction", self.model.vocabulary, tuple(by_instruction))
         if check.problem:
             raise TeachingError(check.problem)
@@ -266,12 +266,6 @@ def _check_seed(seed: int) -> None:
         raise TeachingError(f"the seed must be a whole number in 0..{MAX_SEED}, got {str(seed)[:24]}")
 
 
-def instruction_of(domain: DomainSpec, task_id: int) -> str:
-    """The instruction of ``task_id`` (``TaskEnv.instruction``)."""
-    env: Any = domain.make_env(task_id)
-    return str(env.instruction)
-
-
 @dataclass
 class TeachingEpisode:
     """One person teaching one task: the attempts so far and the corrections between them.
@@ -294,7 +288,7 @@ class TeachingEpisode:
 
     @property
     def instruction(self) -> str:
-        return instruction_of(self.teacher.domain, self.task_id)
+        return self.teacher.domain.instruction_of(self.task_id)
 
     @property
     def split(self) -> str:
