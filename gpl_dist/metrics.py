@@ -13,8 +13,9 @@ ROUND_LINE_LEGEND = (
     "each round prints one line: the tuples collected (states labelled by the expert) and the seconds it took; "
     "'buffer' the tuples trained on; 'train' the seconds, loss and accuracy of the policy against the expert's "
     "labels; 'corr-spread' how much the correction module's output differs between attempts (0: it is dead); "
-    "'dead i c t p' the ReLU units never positive, of all, in the instruction, correction, trajectory and pair "
-    "encoders; 'cK' the mean completion on the training tasks after K corrections (c0: the instruction alone)")
+    "'dead i c t p' the hidden units never positive (ReLU or LeakyReLU), of all, in the instruction, correction, "
+    "trajectory and pair encoders; 'cK' the mean completion on the training tasks after K corrections "
+    "(c0: the instruction alone)")
 
 
 def completion_by_corrections(task_ids: np.ndarray, attempt_index: np.ndarray, completion: np.ndarray,
