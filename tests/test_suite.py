@@ -397,3 +397,36 @@ def test_a_run_left_out_as_not_valid_is_not_listed_as_not_run(tmp_path):
     assert "left out: 0" in row and "not run yet: 2, 3, 4, 5" in row
     not_run = md.split("## Not run yet", 1)[1].split("\n## ", 1)[0]
     assert "- `multiroom-all-corrections`: training seed(s) 2, 3, 4, 5" in not_run.splitlines()
+
+
+def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
+    """Deliverable 6: an entry whose valid completion rose over its last round, significantly over
+    its training seeds, is 'still rising' and names its longer entry; a gain that ties with 0 is
+    'flat'; a curve not computed to the run's last round is not read."""
+    import shutil
+
+    from gpl_dist.app.suite.report import RunResult, plateau_markdown
+    from gpl_dist.app.suite.rundata import CURVE_FILE
+
+    metrics = Path(__file__).resolve().parents[1] / "docs/paper-report/runs/multiroom-full-info/seed0/metrics.jsonl"
+    rounds = len({json.loads(line)["round"] for line in metrics.read_text().splitlines() if line.strip()})
+    gains = {"rising": (0.10, 0.12, 0.09, 0.11, 0.10), "flat": (0.02, -0.03, 0.01, -0.01, 0.0)}
+    results = []
+    for entry, by_seed in gains.items():
+        for seed, gain in enumerate(by_seed):
+            run_dir = tmp_path / entry / f"seed{seed}"
+            run_dir.mkdir(parents=True)
+            shutil.copy(metrics, run_dir / "metrics.jsonl")
+            values = [[0.5]] * (rounds - 1) + [[0.5 + gain]]
+            (run_dir / CURVE_FILE).write_text(json.dumps({"rounds": list(range(rounds)), "completion": values}))
+            results.append(RunResult(entry, seed, run_dir, "test", (0.5,), run_dir / "eval.json", (), (), 0.0, 0.0))
+    short = tmp_path / "short" / "seed0"  # a curve stopped before the last round
+    short.mkdir(parents=True)
+    shutil.copy(metrics, short / "metrics.jsonl")
+    (short / CURVE_FILE).write_text(json.dumps({"rounds": [0, 1], "completion": [[0.1], [0.9]]}))
+    results.append(RunResult("short", 0, short, "test", (0.5,), short / "eval.json", (), (), 0.0, 0.0))
+    table = {line.split(" | ")[0].strip("| "): line for line in plateau_markdown(results, {"rising-long": (0,)}).splitlines()}
+    assert "still rising" in table["rising"] and "`rising-long` (not run yet)" in table["rising"]
+    assert "+0.104" in table["rising"]
+    assert "| flat |" in table["flat"] and "| — |" in table["flat"]
+    assert "short" not in table

@@ -92,9 +92,10 @@ PAPER_TABLES = (
                "corrections: their one number is the first attempt's)", _C05, (
         PaperRow("Instruction", "multiroom-instruction", "test", (0,), (0.075,)),
         PaperRow("Full Info", "multiroom-full-info", "test", (0,), (0.73,)),
-        PaperRow("Full Info, 12 rounds (still improving on valid at 6)", "multiroom-full-info-long", "test", (0,), (0.73,)),
+        PaperRow("Full Info, 12 rounds", "multiroom-full-info-long", "test", (0,), (0.73,)),
         PaperRow("MIVOA (Instr.)", "multiroom-mivoa-instruction", "test", (0,), (0.067,)),
         PaperRow("MIVOA (Full Info)", "multiroom-mivoa-full-info", "test", (0,), (0.63,)),
+        PaperRow("MIVOA (Full Info), 12 rounds", "multiroom-mivoa-full-info-long", "test", (0,), (0.63,)),
         PaperRow("GPL", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
     )),
     PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
@@ -108,8 +109,12 @@ PAPER_TABLES = (
     PaperTable("table2", "Table 2, multi-room ablations", _C05, (
         PaperRow("Base (GPL)", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
         PaperRow("No instruction", "multiroom-no-instruction", "test", _C05, (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
+        PaperRow("No instruction, 12 rounds", "multiroom-no-instruction-long", "test", _C05,
+                 (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
         PaperRow("No trajectory", "multiroom-no-trajectory", "test", _C05, (0.077, 0.44, 0.62, 0.70, 0.76, 0.77)),
         PaperRow("Only immediate correction", "multiroom-latest-correction", "test", _C05,
+                 (0.067, 0.49, 0.44, 0.58, 0.59, 0.63)),
+        PaperRow("Only immediate correction, 12 rounds", "multiroom-latest-correction-long", "test", _C05,
                  (0.067, 0.49, 0.44, 0.58, 0.59, 0.63)),
     )),
     PaperTable("table2-wording", "Table 2's no-trajectory row and the wording of the goal room (not in the paper): "
@@ -142,6 +147,13 @@ PAPER_TABLES = (
         PaperRow("Full Info, in distribution", "multiroom-heldout-full-info", "heldout-indist", (0,), (None,)),
         PaperRow("MIVOA (Full Info), held out", "multiroom-heldout-mivoa-full-info", "heldout", (0,), (0.62,)),
         PaperRow("MIVOA (Full Info), in distribution", "multiroom-heldout-mivoa-full-info", "heldout-indist", (0,), (None,)),
+        PaperRow("Full Info, 12 rounds, held out", "multiroom-heldout-full-info-long", "heldout", (0,), (0.57,)),
+        PaperRow("Full Info, 12 rounds, in distribution", "multiroom-heldout-full-info-long", "heldout-indist", (0,),
+                 (None,)),
+        PaperRow("MIVOA (Full Info), 12 rounds, held out", "multiroom-heldout-mivoa-full-info-long", "heldout", (0,),
+                 (0.62,)),
+        PaperRow("MIVOA (Full Info), 12 rounds, in distribution", "multiroom-heldout-mivoa-full-info-long",
+                 "heldout-indist", (0,), (None,)),
         PaperRow("GPL, held out", "multiroom-heldout-gpl", "heldout", _C05, (0.073, 0.44, 0.58, 0.65, 0.73, 0.75)),
         PaperRow("GPL, in distribution", "multiroom-heldout-gpl", "heldout-indist", _C05, (None,) * 6),
     )),
@@ -594,6 +606,36 @@ def _fmt(value: float | None, spec: str) -> str:
     return "—" if value is None else format(value, spec)
 
 
+def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...]]) -> str:
+    """Whether each entry was still improving at its last round, on the valid split: per run, the
+    valid completion after the last attempt at its last round minus that at the round before
+    (``curve-valid.json``, ``gpl-dist suite curves``); over the entry's valid runs, the mean gain
+    with its 95 % t interval and the two-sided p of the t test against 0. 'still rising' when the
+    gain is significantly above 0, 'flat' when it is a tie with 0. The suite trains an entry that
+    was still rising for more rounds under the name ``<entry>-long``, and both are reported."""
+    lines = ["| entry | runs with a curve | last round | valid completion there | gain over the last round "
+             "(95 % t), p | verdict | trained longer |", "|---|---|---|---|---|---|---|"]
+    runs: dict[str, set[Path]] = {}
+    for r in results:
+        runs.setdefault(r.entry, set()).add(r.run_dir)
+    for entry in sorted(runs):
+        curves = [c for c in (learning_curve(d) for d in sorted(runs[entry]))  # a curve computed to the last round
+                  if len(c.valid) >= 2 and c.rounds and c.valid_rounds[-1] == c.rounds[-1]]
+        if not curves:
+            continue
+        last = [c.valid[-1][-1] for c in curves]
+        diff, p = _paired([c.valid[-2][-1] for c in curves], last)
+        verdict = ("— (one run)" if p is None else "still rising" if p < ALPHA and diff.mean > 0
+                   else "falling" if p < ALPHA else "flat")
+        longer = f"{entry}-long"
+        had = f"`{longer}` ({len(runs[longer])} runs)" if longer in runs else \
+            f"`{longer}` (not run yet)" if longer in planned else "—"
+        rounds = sorted({c.rounds[-1] for c in curves})
+        lines.append(f"| {entry} | {len(curves)} | {', '.join(map(str, rounds))} | {statistics.fmean(last):.3f} | "
+                     f"{_paired_text(diff, p)} | {verdict} | {had} |")
+    return "\n".join(lines)
+
+
 def budgets_markdown(results: list[RunResult], report_dir: Path) -> str:
     """Per entry, mean over its runs: rounds, tuples collected, gradient steps, trained parameters,
     the learner's and collection's wall time."""
@@ -741,6 +783,10 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results)),
                 ("Budgets", "What each entry's runs spent (mean over its valid runs): the no-correction baselines "
                  "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
+                ("Still improving at the last round?", "Valid-split completion (after the last attempt) gained over "
+                 "each run's last DAgger round, from the learning curves above, paired by training seed: an entry "
+                 "still rising is trained on under `<entry>-long` until its curve is flat, and both are reported.",
+                 plateau_markdown(results, planned)),
                 ("Run health", "Each run's conditioning encoders at its final round (dead / units: i instruction, "
                  "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
                  "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
