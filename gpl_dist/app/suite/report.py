@@ -628,7 +628,8 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
         verdict = ("— (one run)" if p is None else "still rising" if p < ALPHA and diff.mean > 0
                    else "falling" if p < ALPHA else "flat")
         longer = f"{entry}-long"
-        had = f"`{longer}` ({len(runs[longer])} runs)" if longer in runs else \
+        n_long = len(runs.get(longer, ()))
+        had = f"`{longer}` ({n_long} run{'' if n_long == 1 else 's'})" if n_long else \
             f"`{longer}` (not run yet)" if longer in planned else "—"
         rounds = sorted({c.rounds[-1] for c in curves})
         lines.append(f"| {entry} | {len(curves)} | {', '.join(map(str, rounds))} | {statistics.fmean(last):.3f} | "
