@@ -408,7 +408,7 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     from gpl_dist.app.suite.report import RunResult, plateau_markdown
     from gpl_dist.app.suite.rundata import CURVE_FILE
 
-    metrics = Path(__file__).resolve().parents[1] / "docs/paper-report/runs/multiroom-full-info/seed0/metrics.jsonl"
+    metrics = REPO / "docs" / "paper-report" / "runs" / "multiroom-full-info" / "seed0" / "metrics.jsonl"
     rounds = len({json.loads(line)["round"] for line in metrics.read_text().splitlines() if line.strip()})
     gains = {"rising": (0.10, 0.12, 0.09, 0.11, 0.10), "flat": (0.02, -0.03, 0.01, -0.01, 0.0)}
     results = []
