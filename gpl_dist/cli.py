@@ -138,14 +138,15 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     (``gpl_dist.app.suite.cost``)."""
     from gpl_dist.app.suite.cost import hours, predict
     from gpl_dist.app.suite.evidence import EvidenceError
-    from gpl_dist.app.suite.runs import run_state
+    from gpl_dist.app.suite.runs import machine_numerics, run_state, trained_as_here
     from gpl_dist.app.suite.spec import load_suite, plan
+    from learner.cpu import machine_summary
     from storage.lease import lease_holder
 
     suite = load_suite(args.suite)
     runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
     states, lines = {}, []
-    refused = 0
+    refused = as_here = 0
     for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
         try:
@@ -155,6 +156,8 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
             lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
             continue
         held = f"; {holder.describe()}" if holder else ""
+        if state == "done" and trained_as_here(run, suite):
+            held, as_here = held + "; numerics as here", as_here + 1
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
     if suite.rl is not None:
@@ -192,6 +195,12 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
           + (f" under {args.costs_from}" if args.costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
+    if runs:
+        here = sorted({machine_numerics(run, suite) for run in runs})
+        done = sum(s == "done" for s in states.values())
+        print(f"numerics: this machine's fingerprint {', '.join(here)} ({machine_summary()}); {as_here} of {done} "
+              "done runs were trained under it ('numerics as here'): trained again here they give the same files, "
+              "bit for bit; the others land elsewhere in their entry's seed spread")
     if refused:
         print(f"gpl-dist: error: {refused} run(s) refused: their evidence fails its checksums or its own consistency "
               "(named above); restore them again from the archive, or remove them to train them anew", file=sys.stderr)

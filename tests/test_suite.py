@@ -430,3 +430,35 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     assert "+0.104" in table["rising"]
     assert "| flat |" in table["flat"] and "| — |" in table["flat"]
     assert "short" not in table
+
+
+def test_a_run_trained_again_under_the_same_numerics_gives_the_same_files_and_status_says_which(tmp_path, capsys):
+    """The record names the machine's numerics fingerprint; a second training of the same entry and
+    seed under it writes the same losses and the same eval; status marks the run 'numerics as
+    here', and not once its record names another machine's."""
+    from gpl_dist.app.suite.runs import machine_numerics, read_record
+
+    path = write_suite(tmp_path / "suite.yaml", {"gpl": entry()})
+    suite = load_suite(path)
+    first, second = tmp_path / "one", tmp_path / "two"
+    run_suite(suite, first, serial=True, progress=False)
+    run_suite(suite, second, serial=True, progress=False)
+    run = plan(suite, first)[0]
+    record = read_record(run.run_dir)
+    assert record["numerics"] == [machine_numerics(run, suite)]
+    for name in ("metrics.jsonl", record["evaluations"]["test"]["file"]):
+        a, b = (out / "gpl" / "seed0" / name for out in (first, second))
+        if name == "metrics.jsonl":
+            keep = ("loss", "accuracy", "collected_tuples", "completion_by_corrections", "encoder_health")
+            rows = [[{k: json.loads(line).get(k) for k in keep} for line in p.read_text().splitlines()] for p in (a, b)]
+            assert rows[0] == rows[1]
+        else:
+            assert json.loads(a.read_text())["completion"] == json.loads(b.read_text())["completion"]
+    assert main(["suite", "status", str(path), "--out", str(first)]) == 0
+    printed = capsys.readouterr().out
+    assert "; numerics as here)" in printed and "1 of 1 done runs were trained under it" in printed
+    record["numerics"] = ["0123456789ab"]  # as another machine would have recorded
+    (run.run_dir / "suite-run.json").write_text(json.dumps(record))
+    assert main(["suite", "status", str(path), "--out", str(first)]) == 0
+    printed = capsys.readouterr().out
+    assert "; numerics as here)" not in printed and "0 of 1 done runs" in printed

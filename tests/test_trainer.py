@@ -404,3 +404,30 @@ def test_the_conditioning_thread_trains_bitwise_as_one_thread(tmp_path, domain_n
     (l1, a1, n1, w1), (l2, a2, n2, w2) = results
     assert (l1, a1, n1) == (l2, a2, n2) and n1 >= 2
     assert all(np.array_equal(w1[k], w2[k]) for k in w1)
+
+
+def _fingerprint_in_a_fresh_process(**env: str) -> str:
+    import os
+    import subprocess
+    import sys
+
+    code = "from learner.cpu import numerics_fingerprint as f; print(f(1))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120,
+                         cwd=Path(__file__).resolve().parent.parent, env={**os.environ, **env})
+    return out.stdout.strip()
+
+
+def test_the_numerics_fingerprint_is_stable_here_and_tells_other_arithmetic_apart():
+    """Two processes of this machine agree; MKL's CPU-independent code path (MKL_CBWR=COMPATIBLE),
+    which sums in another order as another CPU would, does not; the caller's generator is left as
+    it was."""
+    from learner.cpu import numerics_fingerprint
+
+    torch.manual_seed(5)
+    expected = torch.rand(3)
+    torch.manual_seed(5)
+    here = numerics_fingerprint(1)
+    assert torch.equal(torch.rand(3), expected)
+    assert len(here) == 12 and int(here, 16) >= 0
+    assert _fingerprint_in_a_fresh_process() == here
+    assert _fingerprint_in_a_fresh_process(MKL_CBWR="COMPATIBLE") != here

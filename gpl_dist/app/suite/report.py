@@ -205,6 +205,9 @@ class RunResult:
     """The evaluation's ``correction_effort`` (``learner.evaluate.CorrectionEffort``), None in older files."""
     success: tuple[float, ...] = ()
     """Fraction of tasks solved after k corrections (over the evaluation's seeds); () in older files."""
+    numerics: tuple[str, ...] = ()
+    """The numerics fingerprints (``learner.cpu.numerics_fingerprint``) of the machines that trained
+    it; () for a run trained before they were recorded."""
 
 
 @dataclass(frozen=True)
@@ -260,7 +263,8 @@ def collect_results(suite_out: str | Path, log=print) -> list[RunResult]:
                                      tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),
                                      float(ev.get("seconds", 0.0)), payload.get("correction_effort"),
-                                     tuple(float(x) for x in payload.get("success") or ())))
+                                     tuple(float(x) for x in payload.get("success") or ()),
+                                     tuple(record.get("numerics", ()))))
     _check_same_settings(results)
     return results
 
@@ -696,12 +700,22 @@ def plot_curves(results: list[RunResult], domain: str, path: Path) -> bool:
     return True
 
 
+#: What the provenance table's numerics column means for a person re-training a run.
+REPRODUCING = ("**Re-training a run.** `gpl-dist suite run SUITE --out DIR --only ENTRY --seeds S` trains a run "
+               "again from its seed. Where `gpl-dist suite status` prints the run's numerics fingerprint as this "
+               "machine's, it writes the same metrics and eval files, bit for bit. Where the fingerprint differs (another "
+               "CPU model, thread count or torch, numpy or MuJoCo version), MKL and oneDNN sum in another order, the "
+               "last bits differ, training amplifies them, and the run lands at another point of its entry's seed "
+               "spread: compare it with the per-seed table, not with one file. \"not recorded\": trained before "
+               "fingerprints were recorded.")
+
+
 def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:
-    """Per run: its archived dir (relative to ``report_dir``), config, code commits, wall times
-    and evaluation files."""
-    lines = ["| entry | seed | archived run dir (config: `config.yaml` there) | code commit(s) | train min | "
+    """Per run: its archived dir (relative to ``report_dir``), config, code commits, the numerics
+    fingerprint of the machine that trained it, wall times and evaluation files."""
+    lines = ["| entry | seed | archived run dir (config: `config.yaml` there) | code commit(s) | numerics | train min | "
              "evaluations (file, min) |",
-             "|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|"]
     runs = sorted({(r.entry, r.seed, r.run_dir) for r in results})
     for entry, seed, run_dir in runs:
         mine = [r for r in results if r.run_dir == run_dir]
@@ -709,11 +723,14 @@ def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:
         first = mine[0]
         commits = ", ".join(first.commits)
         where = run_dir.relative_to(report_dir) if run_dir.is_relative_to(report_dir) else run_dir
-        lines.append(f"| {entry} | {seed} | `{where}` | {commits} | {first.train_seconds / 60:.1f} | {evals} |")
+        numerics = ", ".join(first.numerics) or "not recorded"
+        lines.append(f"| {entry} | {seed} | `{where}` | {commits} | {numerics} | {first.train_seconds / 60:.1f} | "
+                     f"{evals} |")
     train_s = sum({r.run_dir: r.train_seconds for r in results}.values())
     eval_s = sum(r.eval_seconds for r in results)
     lines.append(f"\nWall time of these runs: {train_s / 3600:.1f} h training, {eval_s / 3600:.2f} h evaluation, "
                  "as each run's process measured it on the machine it ran on.")
+    lines.append("\n" + REPRODUCING)
     return "\n".join(lines)
 
 

@@ -18,8 +18,10 @@ from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
+from learner.cpu import numerics_fingerprint
 from learner.driver import run_training
 from learner.evaluate import evaluate_run
+from learner.trainer import threads_per_learner
 from storage.lease import Lease
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
@@ -65,12 +67,26 @@ def _write_record(run_dir: Path, record: dict) -> None:
     tmp.replace(run_dir / "suite-run.json")
 
 
-def _started(run_dir: Path, record: dict, commit: str) -> None:
-    """Record the code's commit before it trains: a run killed and resumed lists every commit that
-    trained a round of it."""
+def _started(run_dir: Path, record: dict, commit: str, numerics: str) -> None:
+    """Record the code's commit and this machine's numerics fingerprint
+    (``learner.cpu.numerics_fingerprint``) before it trains: a run killed and resumed lists every
+    commit and every fingerprint that trained a round of it."""
     record["commits"] = sorted(set(record["commits"]) | {commit})
+    record["numerics"] = sorted(set(record.get("numerics", [])) | {numerics})
     run_dir.mkdir(parents=True, exist_ok=True)
     _write_record(run_dir, record)
+
+
+def machine_numerics(run: SuiteRun, suite: Suite) -> str:
+    """This machine's numerics fingerprint for ``run``: at the thread count its learner trains on."""
+    return numerics_fingerprint(threads_per_learner(run.config(suite).training))
+
+
+def trained_as_here(run: SuiteRun, suite: Suite) -> bool:
+    """Whether every round of ``run`` was trained under this machine's numerics fingerprint, so
+    that training it again here gives the same files, bit for bit (False where none was recorded)."""
+    record = read_record(run.run_dir) or {}
+    return record.get("numerics") == [machine_numerics(run, suite)]
 
 
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
@@ -117,7 +133,7 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
-        _started(run.run_dir, record, commit)
+        _started(run.run_dir, record, commit, machine_numerics(run, suite))
         t0 = time.perf_counter()
         run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
                      progress=progress)
