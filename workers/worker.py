@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from gpl_dist.allocator import keep_freed_memory
 from gpl_dist.config import CollectionConfig, EnvConfig, ModelConfig
@@ -66,12 +67,19 @@ class RolloutWorker:
         writer: a ``storage.ShardWriter`` (anything with ``write_unit``); None for ``collect`` only.
         worker_id: name recorded with every shard.
         num_threads: torch intra-op threads for policy inference (0 leaves torch's default).
+
+    The process's BLAS (numpy's OpenBLAS: the learned relocation expert's batched forward) runs on
+    one thread, as in a 1-CPU Ray actor, whose ``OMP_NUM_THREADS`` Ray sets to 1: in the serial
+    collector, which runs the worker in the driver, a second BLAS thread of a forward this small
+    stalls beside any other busy process (relocation collection about 3.5x slower beside two
+    trainings); the labels are the same bits either way.
     """
 
     def __init__(self, domain: DomainSpec, settings: RolloutSettings, writer: Any = None,
                  worker_id: str = "worker-0", num_threads: int = 0):
         if num_threads:
             torch.set_num_threads(num_threads)
+        threadpool_limits(limits=1, user_api="blas")  # process-wide, as Ray's actor has it (class doc)
         keep_freed_memory()  # the batched forward's temporaries would page-fault afresh every step
         self.domain = domain
         self.settings = settings
