@@ -6,8 +6,8 @@
 rollout actor. In the serial collector the worker runs in the driver process, where numpy's
 OpenBLAS would otherwise take every core for the learned relocation expert's batched forward
 (``gpl_dist.experts.relocation_learned.batch_probs``, 64-128 rows through a 256 x 3 MLP). This
-collects the same ``--tasks`` training tasks (one DAgger round of a fresh instruction-only
-network, every state labelled) alternately with BLAS on 1 and on 2 threads, quiet and then
+collects the same ``--tasks`` training tasks (one DAgger round of a fresh GPL network with the
+shipped config's 5 corrections, every state labelled) alternately with BLAS on 1 and on 2 threads, quiet and then
 beside one busy process that this script starts (a pure-Python loop: what a laptop's other work,
 or a second training, does to the cores), and prints tuples/s and the ratio. The collected
 attempts are compared too: the labels must be the same bits on 1 and 2 threads.
@@ -31,16 +31,20 @@ from workers.worker import RolloutSettings, RolloutWorker
 CONFIG = "configs/relocation.yaml"
 
 
-def _busy(stop) -> None:
+def _busy(started, stop) -> None:
+    started.set()
     x = 0
     while not stop.is_set():
         x = (x * 31 + 7) % 1_000_003
 
 
 def _collect(worker: RolloutWorker, tasks: list[int], blas_threads: int) -> tuple[float, int, np.ndarray]:
+    """One collection with the process's BLAS on ``blas_threads`` threads: the worker's own limit
+    (one thread while it collects) is lifted for 2 by collecting through its rollout directly."""
     threadpool_limits(limits=blas_threads, user_api="blas")
     t0 = time.perf_counter()
-    attempts = worker.collect(tasks, "train", seed=0)
+    attempts = list(worker.rollout.run(tasks, worker.settings.collection.num_corrections, 0, split="train",
+                                       policy_version=worker.policy_version).attempts)
     seconds = time.perf_counter() - t0
     labels = np.concatenate([a.expert_probs for a in attempts])
     return seconds, sum(len(a.expert_actions) for a in attempts), labels
@@ -60,7 +64,6 @@ def measure(tasks: list[int], repeats: int) -> dict[int, list[float]]:
             rates[threads].append(n / seconds)
             labels[threads] = lab
     assert np.array_equal(labels[1], labels[2]), "1 and 2 BLAS threads labelled differently"
-    threadpool_limits(limits=1, user_api="blas")
     return rates
 
 
@@ -73,10 +76,11 @@ def main() -> None:
     print(f"relocation, {args.tasks} training tasks, 1 collection round, best of {args.repeats}, tuples/s")
     for label in ("quiet", "beside one busy process"):
         ctx = mp.get_context("spawn")  # a forked child of a process with BLAS and torch threads can hang
-        stop = ctx.Event()
-        busy = ctx.Process(target=_busy, args=(stop,)) if label != "quiet" else None
+        started, stop = ctx.Event(), ctx.Event()
+        busy = ctx.Process(target=_busy, args=(started, stop)) if label != "quiet" else None
         if busy:
             busy.start()
+            started.wait()  # its imports done: the loop runs from the first measurement on
         try:
             rates = measure(tasks, args.repeats)
         finally:

@@ -146,7 +146,8 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     suite = load_suite(args.suite)
     runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
     states, lines = {}, []
-    refused = as_here = 0
+    refused = 0
+    numerics = {True: 0, False: 0, None: 0}  # trained runs: under this machine's fingerprint, another, none recorded
     for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
         try:
@@ -156,8 +157,10 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
             lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
             continue
         held = f"; {holder.describe()}" if holder else ""
-        if state == "done" and trained_as_here(run, suite):
-            held, as_here = held + "; numerics as here", as_here + 1
+        if state in ("done", "evaluate"):
+            same = trained_as_here(run, suite)
+            numerics[same] += 1
+            held += "; numerics as here" if same else ""
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
     if suite.rl is not None:
@@ -197,10 +200,10 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
     if runs:
         here = sorted({machine_numerics(run, suite) for run in runs})
-        done = sum(s == "done" for s in states.values())
-        print(f"numerics: this machine's fingerprint {', '.join(here)} ({machine_summary()}); {as_here} of {done} "
-              "done runs were trained under it ('numerics as here'): trained again here they give the same files, "
-              "bit for bit; the others land elsewhere in their entry's seed spread")
+        print(f"numerics: this machine's {', '.join(here)} ({machine_summary()}); of the {sum(numerics.values())} "
+              f"trained runs, {numerics[True]} were trained under it ('numerics as here': trained again here they give "
+              f"the same files, bit for bit), {numerics[False]} under another (trained again here they land elsewhere "
+              f"in their entry's seed spread), {numerics[None]} before fingerprints were recorded")
     if refused:
         print(f"gpl-dist: error: {refused} run(s) refused: their evidence fails its checksums or its own consistency "
               "(named above); restore them again from the archive, or remove them to train them anew", file=sys.stderr)

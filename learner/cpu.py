@@ -67,15 +67,16 @@ NUMERICS_PACKAGES = ("torch", "numpy", "mujoco")
 
 @lru_cache(maxsize=None)
 def numerics_fingerprint(threads: int = 1) -> str:
-    """12 hex digits that change with anything that changes a training's bits on this machine.
+    """12 hex digits that tell two machines' float arithmetic apart (evidence, not a proof).
 
     A run is bitwise reproducible from its seed only where its float arithmetic is the same. That
     holds on one machine, but not across CPUs: MKL and oneDNN pick their code path (and so their
     order of summation) by CPU, and torch's own kernels by its vector width; a different order
     changes the last bit of a sum, and a training amplifies it into another set of weights. So
-    this hashes the result of three Adam steps of a small conv + batch norm + MLP network on
-    seeded data, computed on ``threads`` intra-op threads (the learner's), with the versions of
-    ``NUMERICS_PACKAGES``. Under one fingerprint a run trains to the same files, as two trainings
+    this hashes the result of three fused-Adam steps (the learner's optimiser) of a small conv +
+    batch norm + MLP network on seeded data, computed on ``threads`` intra-op threads (the
+    learner's), with the versions of ``NUMERICS_PACKAGES`` (numpy's BLAS and MuJoCo's arithmetic
+    enter by version only). Under one fingerprint a run trains to the same files, as two trainings
     on one machine do; under another it lands at another point of its entry's seed spread. It
     speaks for the CPU only: a learner on a GPU is not bitwise reproducible at all
     (``docs/cluster.md``). Cached per thread count: computed once per process.
@@ -92,7 +93,7 @@ def numerics_fingerprint(threads: int = 1) -> str:
             gen = torch.Generator().manual_seed(0)
             x = torch.randn(512, 3, 7, 7, generator=gen)
             y = torch.randint(0, 7, (512,), generator=gen)
-            opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+            opt = torch.optim.Adam(net.parameters(), lr=1e-3, fused=True)
             for _ in range(3):
                 opt.zero_grad()
                 torch.nn.functional.cross_entropy(net(x), y).backward()

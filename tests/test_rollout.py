@@ -168,18 +168,26 @@ def test_settings_from_config_carry_the_run_and_the_overrides():
         dataclasses.replace(s, not_a_setting=1)
 
 
-def test_a_worker_puts_its_process_blas_on_one_thread_and_the_labels_do_not_depend_on_it():
+def test_a_worker_collects_with_one_blas_thread_and_gives_the_process_its_own_back():
     """As in a 1-CPU Ray actor (``workers.worker.RolloutWorker``): the serial collector's worker
     lives in the driver, where a second BLAS thread stalls beside any busy process. The learned
-    relocation expert's labels are the same bits on 1 and 2 BLAS threads."""
+    relocation expert labels on one BLAS thread; after the unit the process has its two again."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
-    threadpool_limits(limits=2, user_api="blas")
+    def blas_threads() -> set[int]:
+        return {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+
     w = make_worker("relocation", num_corrections=0, expert="learned")
-    assert {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"} == {1}
-    labels = {}
-    for threads in (1, 2):
-        threadpool_limits(limits=threads, user_api="blas")
-        labels[threads] = np.concatenate([a.expert_probs for a in w.collect([0, 1], "train", seed=3)])
-    threadpool_limits(limits=1, user_api="blas")
-    assert labels[1].shape[0] > 0 and np.array_equal(labels[1], labels[2])
+    seen: list[set[int]] = []
+    label_batch = w.rollout.expert.label_batch
+
+    def watched(envs):
+        seen.append(blas_threads())
+        return label_batch(envs)
+
+    w.rollout.expert.label_batch = watched
+    with threadpool_limits(limits=2, user_api="blas"):
+        attempts = w.collect([0, 1], "train", seed=3)
+        after = blas_threads()
+    assert attempts and seen and all(s == {1} for s in seen)
+    assert after == {2}

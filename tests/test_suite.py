@@ -456,9 +456,10 @@ def test_a_run_trained_again_under_the_same_numerics_gives_the_same_files_and_st
             assert json.loads(a.read_text())["completion"] == json.loads(b.read_text())["completion"]
     assert main(["suite", "status", str(path), "--out", str(first)]) == 0
     printed = capsys.readouterr().out
-    assert "; numerics as here)" in printed and "1 of 1 done runs were trained under it" in printed
+    assert "; numerics as here)" in printed and "of the 1 trained runs, 1 were trained under it" in printed
     record["numerics"] = ["0123456789ab"]  # as another machine would have recorded
     (run.run_dir / "suite-run.json").write_text(json.dumps(record))
     assert main(["suite", "status", str(path), "--out", str(first)]) == 0
     printed = capsys.readouterr().out
-    assert "; numerics as here)" not in printed and "0 of 1 done runs" in printed
+    assert "; numerics as here)" not in printed and "0 were trained under it" in printed
+    assert "1 under another" in printed

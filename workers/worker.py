@@ -68,8 +68,8 @@ class RolloutWorker:
         worker_id: name recorded with every shard.
         num_threads: torch intra-op threads for policy inference (0 leaves torch's default).
 
-    The process's BLAS (numpy's OpenBLAS: the learned relocation expert's batched forward) runs on
-    one thread, as in a 1-CPU Ray actor, whose ``OMP_NUM_THREADS`` Ray sets to 1: in the serial
+    While it collects, the process's BLAS (numpy's OpenBLAS: the learned relocation expert's
+    batched forward) runs on one thread, as in a 1-CPU Ray actor, whose ``OMP_NUM_THREADS`` Ray sets to 1: in the serial
     collector, which runs the worker in the driver, a second BLAS thread of a forward this small
     stalls beside any other busy process (relocation collection about 3.5x slower beside two
     trainings); the labels are the same bits either way.
@@ -79,7 +79,6 @@ class RolloutWorker:
                  worker_id: str = "worker-0", num_threads: int = 0):
         if num_threads:
             torch.set_num_threads(num_threads)
-        threadpool_limits(limits=1, user_api="blas")  # process-wide, as Ray's actor has it (class doc)
         keep_freed_memory()  # the batched forward's temporaries would page-fault afresh every step
         self.domain = domain
         self.settings = settings
@@ -111,7 +110,8 @@ class RolloutWorker:
 
     def collect(self, task_ids: Sequence[int], split: str, seed: int, round_index: int = 0) -> list[Attempt]:
         """All attempts of ``task_ids``, in (task order, attempt index) order."""
-        result = self.rollout.run(task_ids, self.settings.collection.num_corrections, seed, round_index=round_index,
-                                  split=split, policy_version=self.policy_version)
+        with threadpool_limits(limits=1, user_api="blas"):  # as Ray's actor has it (class doc); restored after
+            result = self.rollout.run(task_ids, self.settings.collection.num_corrections, seed, round_index=round_index,
+                                      split=split, policy_version=self.policy_version)
         self.failures = list(result.failures)
         return list(result.attempts)

@@ -702,12 +702,13 @@ def plot_curves(results: list[RunResult], domain: str, path: Path) -> bool:
 
 #: What the provenance table's numerics column means for a person re-training a run.
 REPRODUCING = ("**Re-training a run.** `gpl-dist suite run SUITE --out DIR --only ENTRY --seeds S` trains a run "
-               "again from its seed. Where `gpl-dist suite status` prints the run's numerics fingerprint as this "
-               "machine's, it writes the same metrics and eval files, bit for bit. Where the fingerprint differs (another "
-               "CPU model, thread count or torch, numpy or MuJoCo version), MKL and oneDNN sum in another order, the "
-               "last bits differ, training amplifies them, and the run lands at another point of its entry's seed "
-               "spread: compare it with the per-seed table, not with one file. \"not recorded\": trained before "
-               "fingerprints were recorded.")
+               "again from its seed. Where `gpl-dist suite status` marks it `numerics as here` (its recorded "
+               "fingerprint is this machine's: trained on the CPU, one thread per learner, not on a cluster), it "
+               "writes the same metrics and eval files, bit for bit. Under another fingerprint (another CPU model or "
+               "thread count, another torch, numpy or MuJoCo version) MKL and oneDNN sum in another order, the last "
+               "bits differ, training amplifies them, and the run lands at another point of its entry's seed "
+               "spread: compare it with the per-seed table, not with one file. `gpu`, `threads>1`, `cluster`: no "
+               "bitwise reproduction on offer; \"not recorded\": trained before fingerprints were recorded.")
 
 
 def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:

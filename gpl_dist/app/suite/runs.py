@@ -21,7 +21,7 @@ from learner.checkpoint import rounds_trained
 from learner.cpu import numerics_fingerprint
 from learner.driver import run_training
 from learner.evaluate import evaluate_run
-from learner.trainer import threads_per_learner
+from learner.trainer import resolve_device, threads_per_learner
 from storage.lease import Lease
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
@@ -77,16 +77,33 @@ def _started(run_dir: Path, record: dict, commit: str, numerics: str) -> None:
     _write_record(run_dir, record)
 
 
-def machine_numerics(run: SuiteRun, suite: Suite) -> str:
-    """This machine's numerics fingerprint for ``run``: at the thread count its learner trains on."""
-    return numerics_fingerprint(threads_per_learner(run.config(suite).training))
+#: What a run records instead of a fingerprint where bitwise reproduction is not on offer.
+NOT_BITWISE = ("gpu", "threads>1", "cluster")
 
 
-def trained_as_here(run: SuiteRun, suite: Suite) -> bool:
+def machine_numerics(run: SuiteRun, suite: Suite, address: str | None = None) -> str:
+    """This machine's numerics fingerprint for ``run`` (at its learner's thread count), or why
+    there is none to compare: ``gpu`` (its learner trains on a GPU: not bitwise reproducible at
+    all), ``threads>1`` (more than one intra-op thread sums in a varying order) or ``cluster``
+    (``address``: its actors and learners may run on other machines than this one)."""
+    training = run.config(suite).training
+    if address is not None:
+        return "cluster"
+    if resolve_device(training.device).type != "cpu":
+        return "gpu"
+    threads = threads_per_learner(training)
+    return "threads>1" if threads > 1 else numerics_fingerprint(threads)
+
+
+def trained_as_here(run: SuiteRun, suite: Suite) -> bool | None:
     """Whether every round of ``run`` was trained under this machine's numerics fingerprint, so
-    that training it again here gives the same files, bit for bit (False where none was recorded)."""
-    record = read_record(run.run_dir) or {}
-    return record.get("numerics") == [machine_numerics(run, suite)]
+    that training it again here gives the same files, bit for bit; None where its record names
+    no fingerprint (trained before they were recorded)."""
+    recorded = (read_record(run.run_dir) or {}).get("numerics")
+    if not recorded:
+        return None
+    here = machine_numerics(run, suite)
+    return here not in NOT_BITWISE and recorded == [here]
 
 
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
@@ -133,7 +150,7 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
-        _started(run.run_dir, record, commit, machine_numerics(run, suite))
+        _started(run.run_dir, record, commit, machine_numerics(run, suite, address))
         t0 = time.perf_counter()
         run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
                      progress=progress)
