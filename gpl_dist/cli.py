@@ -148,6 +148,7 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
     states, lines = {}, []
     refused = 0
     numerics = {True: 0, False: 0, None: 0}  # trained runs: under this machine's fingerprint, another, none recorded
+    here: set[str] = set()  # this machine's fingerprint for each run (its thread count), once per run
     for run in runs:
         holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
         try:
@@ -157,8 +158,10 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
             lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
             continue
         held = f"; {holder.describe()}" if holder else ""
+        mine = machine_numerics(run, suite)
+        here.add(mine)
         if state in ("done", "evaluate"):
-            same = trained_as_here(run, suite)
+            same = trained_as_here(run, mine)
             numerics[same] += 1
             held += "; numerics as here" if same else ""
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
@@ -198,9 +201,8 @@ def cmd_suite_status(args: argparse.Namespace) -> int:
           + (f" under {args.costs_from}" if args.costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
           + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
-    if runs:
-        here = sorted({machine_numerics(run, suite) for run in runs})
-        print(f"numerics: this machine's {', '.join(here)} ({machine_summary()}); of the {sum(numerics.values())} "
+    if here:
+        print(f"numerics: this machine's {', '.join(sorted(here))} ({machine_summary()}); of the {sum(numerics.values())} "
               f"trained runs, {numerics[True]} were trained under it ('numerics as here': trained again here they give "
               f"the same files, bit for bit), {numerics[False]} under another (trained again here they land elsewhere "
               f"in their entry's seed spread), {numerics[None]} before fingerprints were recorded")

@@ -22,15 +22,20 @@ BF16_FLAGS = ("avx512_bf16", "amx_bf16")
 
 
 @lru_cache(maxsize=None)
-def cpu_flags() -> frozenset[str]:
-    """The first processor's flags in ``/proc/cpuinfo`` (empty where there is none)."""
+def _cpuinfo(field: str) -> str | None:
+    """The first processor's ``field`` in ``/proc/cpuinfo`` (None where there is none)."""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                return frozenset(line.split(":", 1)[1].split())
+            if line.split(":", 1)[0].strip() == field:
+                return line.split(":", 1)[1].strip()
     except OSError:
         pass
-    return frozenset()
+    return None
+
+
+def cpu_flags() -> frozenset[str]:
+    """The first processor's flags in ``/proc/cpuinfo`` (empty where there is none)."""
+    return frozenset((_cpuinfo("flags") or "").split())
 
 
 def native_bf16() -> bool:
@@ -119,12 +124,5 @@ def _versions() -> dict[str, str]:
 
 def machine_summary() -> str:
     """The CPU's model name and the versions that the numerics fingerprint reads, in one line."""
-    name = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    name = _cpuinfo("model name") or "unknown CPU"
     return ", ".join([name, *(f"{pkg} {version}" for pkg, version in _versions().items())])

@@ -95,14 +95,13 @@ def machine_numerics(run: SuiteRun, suite: Suite, address: str | None = None) ->
     return "threads>1" if threads > 1 else numerics_fingerprint(threads)
 
 
-def trained_as_here(run: SuiteRun, suite: Suite) -> bool | None:
-    """Whether every round of ``run`` was trained under this machine's numerics fingerprint, so
-    that training it again here gives the same files, bit for bit; None where its record names
-    no fingerprint (trained before they were recorded)."""
+def trained_as_here(run: SuiteRun, here: str) -> bool | None:
+    """Whether every round of ``run`` was trained under ``here`` (this machine's
+    ``machine_numerics`` for it), so that training it again here gives the same files, bit for bit;
+    None where its record names no fingerprint (trained before they were recorded)."""
     recorded = (read_record(run.run_dir) or {}).get("numerics")
     if not recorded:
         return None
-    here = machine_numerics(run, suite)
     return here not in NOT_BITWISE and recorded == [here]
 
 
