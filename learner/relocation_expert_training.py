@@ -40,8 +40,9 @@ from gpl_dist.experts.relocation_learned import NUM_LAYERS
 from gpl_dist.splits import split_tasks
 from learner.ppo import PPOSettings, make_sb3_ppo
 
-#: Reset seed of test task k is ``TEST_SEED + k``, for the expert and the policy alike.
-TEST_SEED = 99_999
+#: Reset seed of monitored task k is ``MONITOR_SEED + k``, for the expert and the policy alike. The
+#: printed completions are on the valid split: whatever is chosen by watching them never reads test.
+MONITOR_SEED = 99_999
 #: Inputs of the policy: the 28-d observation, the target (x, y) and the goal block's one-hot.
 INPUT_DIM = 33
 
@@ -108,7 +109,7 @@ class DaggerSettings:
     Attributes:
         rounds: DAgger rounds.
         tasks: training tasks rolled out per round (the first N of the split).
-        test_tasks: first N test tasks for the printed completion.
+        valid_tasks: first N valid tasks for the printed completion.
         epochs: epochs over the aggregate per round.
         width: hidden units of the 3-layer head.
         keep_rounds: train on the newest N rounds only (0: all).
@@ -117,7 +118,7 @@ class DaggerSettings:
 
     rounds: int = 14
     tasks: int = 250
-    test_tasks: int = 100
+    valid_tasks: int = 100
     epochs: int = 5
     width: int = 256
     keep_rounds: int = 0
@@ -129,9 +130,9 @@ def privileged_dagger(s: DaggerSettings, log: Callable[[str], None] = print,
     """Step 1 (module docstring); ``log`` gets one line per round, ``on_round`` the policy after each."""
     torch.manual_seed(s.seed)
     train = split_tasks("relocation", "train")[:s.tasks]
-    test = split_tasks("relocation", "test")[:s.test_tasks]
-    hard, sampled = expert_on(test, TEST_SEED)
-    log(f"expert on {len(test)} test tasks: completion {hard:.3f} (its actions), {sampled:.3f} (sampled from its labels)")
+    valid = split_tasks("relocation", "valid")[:s.valid_tasks]
+    hard, sampled = expert_on(valid, MONITOR_SEED)
+    log(f"expert on {len(valid)} valid tasks: completion {hard:.3f} (its actions), {sampled:.3f} (sampled from its labels)")
     policy = build_policy(INPUT_DIM, s.width)
     opt = torch.optim.Adam(policy.parameters(), lr=1e-3)
     xs: list[np.ndarray] = []
@@ -153,9 +154,9 @@ def privileged_dagger(s: DaggerSettings, log: Callable[[str], None] = print,
         mean_loss = _fit(policy, opt, xa, ya, s.epochs)
         entropy = float(-(ya * torch.log(ya.clamp_min(1e-8))).sum(1).mean())
         policy.eval()
-        c_test, solved, _, _ = privileged_rollout(policy, test, TEST_SEED, label=False)
+        c_valid, solved, _, _ = privileged_rollout(policy, valid, MONITOR_SEED, label=False)
         log(f"round {r}: train rollouts {c_train.mean():.3f} | on-policy KL {kl_new:.3f} | {len(ya):,} states, "
-            f"KL on them {mean_loss - entropy:.3f} | test completion {c_test.mean():.3f} "
+            f"KL on them {mean_loss - entropy:.3f} | valid completion {c_valid.mean():.3f} "
             f"(solved at the end: {solved.mean():.2f}) ({time.perf_counter() - start:.0f} s)")
         if on_round is not None:
             on_round(policy)
@@ -240,9 +241,9 @@ class FinetuneSettings:
     warmup: int = 8
     """Iterations that train only the value layers."""
     eval_every: int = 40
-    """Iterations between test completions (and exports)."""
-    test_tasks: int = 100
-    """First N test tasks for the printed completion."""
+    """Iterations between valid completions (and exports)."""
+    valid_tasks: int = 100
+    """First N valid tasks for the printed completion."""
     return_scale: float = 20.0
     """Rewards are divided by this (``PrivilegedTasks``)."""
     seed: int = 0
@@ -329,8 +330,9 @@ def policy_of(model, like: nn.Sequential) -> nn.Sequential:
 #: Layout version of step 2's checkpoint (``save_ppo_checkpoint``). 2: the settings by
 #: ``FinetuneSettings``' names (``ppo.<PPOSettings field>``); 1 (read too): the former flat names.
 CHECKPOINT_FORMAT = 2
-#: Settings a resumed run may change: ``iterations`` extends or shortens it; the other two only print.
-_FREE_ON_RESUME = ("iterations", "eval_every", "test_tasks")
+#: Settings a resumed run may change: ``iterations`` extends or shortens it; the others only print
+#: (``test_tasks``: the former monitor of the test split, in checkpoints written before it read valid).
+_FREE_ON_RESUME = ("iterations", "eval_every", "valid_tasks", "test_tasks")
 #: Format 1's settings by their names now (its ``max_kl`` was 1.5 x SB3's ``target_kl``) ...
 _FORMAT_1_NAMES = {"envs": "ppo.n_envs", "lr": "ppo.learning_rate", "critic_lr": "ppo.value_learning_rate",
                    "clip": "ppo.clip_range", "epochs": "ppo.n_epochs", "minibatch": "ppo.batch_size",
@@ -414,7 +416,7 @@ def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str]
                  on_eval: Callable[[nn.Module], None] | None = None, checkpoint: str | None = None,
                  resume: bool = False) -> nn.Sequential:
     """Step 2 (module docstring): SB3's PPO from ``policy``; returns the fine-tuned policy (a new
-    network); ``on_eval`` gets it at every test. With ``checkpoint``, the state is saved there
+    network); ``on_eval`` gets it at every valid-split completion. With ``checkpoint``, the state is saved there
     after every iteration; ``resume`` goes on from it, and the result is the same as a run never
     stopped (for the same torch thread count)."""
     from stable_baselines3.common.callbacks import BaseCallback
@@ -425,21 +427,21 @@ def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str]
     if resume and checkpoint is not None and os.path.exists(checkpoint):
         done = load_ppo_checkpoint(checkpoint, model, s, init)
         log(f"resumed after iteration {done - 1} from {checkpoint}")
-    test = split_tasks("relocation", "test")[:s.test_tasks]
+    valid = split_tasks("relocation", "valid")[:s.valid_tasks]
     pi_params = [*model.policy.mlp_extractor.policy_net.parameters(), *model.policy.action_net.parameters()]
 
-    def test_completion(net: nn.Module) -> tuple[float, float]:
-        completion, solved, _, _ = privileged_rollout(net, test, TEST_SEED, label=False)
+    def valid_completion(net: nn.Module) -> tuple[float, float]:
+        completion, solved, _, _ = privileged_rollout(net, valid, MONITOR_SEED, label=False)
         return float(completion.mean()), float(solved.mean())
 
     if done == 0:
-        c, sv = test_completion(policy.eval())
-        log(f"start: test completion {c:.3f}, solved {sv:.2f}")
+        c, sv = valid_completion(policy.eval())
+        log(f"start: valid completion {c:.3f}, solved {sv:.2f}")
     start = time.perf_counter()
 
     class Progress(BaseCallback):
         """Counts iterations: the value layers alone for ``warmup``; one line per iteration after
-        its update, with a test every ``eval_every``, then the checkpoint."""
+        its update, with a valid-split completion every ``eval_every``, then the checkpoint."""
 
         iteration = done
         reported = done
@@ -470,8 +472,8 @@ def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str]
                     f"{time.perf_counter() - start:.0f} s")
             if self.iteration % s.eval_every == 0:
                 net = policy_of(self.model, policy)
-                c, sv = test_completion(net)
-                line += f" | test completion {c:.3f}, solved {sv:.2f}"
+                c, sv = valid_completion(net)
+                line += f" | valid completion {c:.3f}, solved {sv:.2f}"
                 if on_eval is not None:
                     on_eval(net)
             log(line)
@@ -484,8 +486,8 @@ def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str]
                     reset_num_timesteps=False)
     progress.report()  # the last iteration's line
     tuned = policy_of(model, policy)
-    c, sv = test_completion(tuned)
-    log(f"end: test completion {c:.3f}, solved {sv:.2f}")
+    c, sv = valid_completion(tuned)
+    log(f"end: valid completion {c:.3f}, solved {sv:.2f}")
     return tuned
 
 

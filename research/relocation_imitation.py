@@ -8,17 +8,18 @@
    trains ``--epochs`` epochs with cross-entropy. Printed per round: completion on the training
    rollouts, the policy's KL to the expert on the states it has just visited (before training on
    them: DAgger's on-policy error), the KL on the training states, and completion on
-   ``--test-tasks`` held-out tasks. Whatever this reaches is a ceiling for GPL, which must infer
+   ``--valid-tasks`` held-out tasks of the valid split. Whatever this reaches is a ceiling for GPL, which must infer
    the target from language.
-2. **Failure modes of a run** (``--run-dir``): rolls a GPL checkpoint out on test tasks with
+2. **Failure modes of a run** (``--run-dir``): rolls a GPL checkpoint out on valid tasks with
    corrections and classifies the attempts that end below 0.9 completion by where the block
    stopped: past the target in x (the expert needs its back pose to push -x), short of it, or
    off in y only.
 
-Both also print the expert's own completion on the same test tasks, hard and sampled from its
-labels, so the gap is measured side by side. Deterministic for a given ``--seed``.
+Both also print the expert's own completion on the same valid tasks, hard and sampled from its
+labels, so the gap is measured side by side. Deterministic for a given ``--seed``. Both read the
+valid split, never test: what they show informs choices.
 
-    .venv/bin/python research/relocation_imitation.py [--rounds 8] [--tasks 250] [--test-tasks 100]
+    .venv/bin/python research/relocation_imitation.py [--rounds 8] [--tasks 250] [--valid-tasks 100]
     .venv/bin/python research/relocation_imitation.py --run-dir runs/rl-v4
 """
 
@@ -31,18 +32,18 @@ import torch
 
 from gpl_dist.envs.relocation_core import BLOCK_QPOS, make_task
 from gpl_dist.splits import split_tasks
-from learner.relocation_expert_training import TEST_SEED, DaggerSettings, expert_on, privileged_dagger
+from learner.relocation_expert_training import MONITOR_SEED, DaggerSettings, expert_on, privileged_dagger
 
 
 def report_expert(task_ids) -> None:
-    """Print the expert's completion on ``task_ids``, reset as every test rollout here is."""
-    hard, sampled = expert_on(task_ids, TEST_SEED)
-    print(f"expert on {len(task_ids)} test tasks: completion {hard:.3f} (its actions), "
+    """Print the expert's completion on ``task_ids``, reset as every rollout here is."""
+    hard, sampled = expert_on(task_ids, MONITOR_SEED)
+    print(f"expert on {len(task_ids)} valid tasks: completion {hard:.3f} (its actions), "
           f"{sampled:.3f} (sampled from its labels)")
 
 
 def dagger(args) -> None:
-    settings = DaggerSettings(rounds=args.rounds, tasks=args.tasks, test_tasks=args.test_tasks, epochs=args.epochs,
+    settings = DaggerSettings(rounds=args.rounds, tasks=args.tasks, valid_tasks=args.valid_tasks, epochs=args.epochs,
                               width=args.width, keep_rounds=args.keep_rounds, seed=args.seed)
     save = (lambda policy: torch.save(policy.state_dict(), args.save_policy)) if args.save_policy else None
     privileged_dagger(settings, lambda line: print(line, flush=True), on_round=save)
@@ -65,9 +66,9 @@ def failure_modes(args) -> None:
     model.eval()
     rollout = Rollout(get_domain("relocation"), model, make_corrector("relocation", cfg.env.correction_kind),
                       end_aligned=cfg.model.trajectory_ends_at_last_state)
-    test = split_tasks("relocation", "test")[:args.test_tasks]
-    report_expert(test)
-    attempts = rollout.run(tuple(test), args.corrections, args.seed, split="test",
+    valid = split_tasks("relocation", "valid")[:args.valid_tasks]
+    report_expert(valid)
+    attempts = rollout.run(tuple(valid), args.corrections, args.seed, split="valid",
                            policy_version=ckpt.policy_version).attempts
     print(f"{args.run_dir} (round {ckpt.round_index}), attempts ending below 0.9 completion, "
           "by where the block stopped:")
@@ -90,7 +91,7 @@ def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--rounds", type=int, default=8, help="DAgger rounds")
     p.add_argument("--tasks", type=int, default=250, help="training tasks rolled out per round")
-    p.add_argument("--test-tasks", type=int, default=100)
+    p.add_argument("--valid-tasks", type=int, default=100, help="first N valid tasks for the printed completions")
     p.add_argument("--epochs", type=int, default=5, help="epochs over the aggregate per round")
     p.add_argument("--width", type=int, default=256, help="hidden units of the 3-layer head")
     p.add_argument("--keep-rounds", type=int, default=0, help="train on the newest N rounds only (0: all)")

@@ -42,14 +42,14 @@ def _log(line: str) -> None:
 
 def dagger(a: argparse.Namespace) -> None:
     """Step 1: write the privileged policy's state_dict to ``--out`` after every round."""
-    settings = DaggerSettings(rounds=a.rounds, tasks=a.tasks, test_tasks=a.test_tasks, epochs=a.epochs,
+    settings = DaggerSettings(rounds=a.rounds, tasks=a.tasks, valid_tasks=a.valid_tasks, epochs=a.epochs,
                               width=a.width, keep_rounds=a.keep_rounds, seed=a.seed)
     # weights only: torch.load(..., weights_only=True) reads them back
     privileged_dagger(settings, _log, on_round=lambda policy: torch.save(policy.state_dict(), a.out))
 
 
 def ppo(a: argparse.Namespace) -> None:
-    """Step 2: from ``--init``, export to ``--out`` at every test and at the end; the state after
+    """Step 2: from ``--init``, export to ``--out`` at every valid-split completion and at the end; the state after
     every iteration goes to ``--checkpoint``, and ``--resume`` goes on from it."""
     checkpoint = a.checkpoint or f"{a.out}.ckpt.pt"
     if os.path.exists(checkpoint) and not a.resume:
@@ -61,7 +61,7 @@ def ppo(a: argparse.Namespace) -> None:
     ppo_settings = replace(FinetuneSettings().ppo, n_envs=a.n_envs, learning_rate=a.learning_rate,
                            clip_range=a.clip_range, n_epochs=a.n_epochs, batch_size=a.batch_size)
     settings = FinetuneSettings(ppo=ppo_settings, iterations=a.iterations, warmup=a.warmup, eval_every=a.eval_every,
-                                test_tasks=a.test_tasks, seed=a.seed)
+                                valid_tasks=a.valid_tasks, seed=a.seed)
     tuned = ppo_finetune(policy, settings, _log, on_eval=lambda p: export(p, a.out), checkpoint=checkpoint,
                          resume=a.resume)
     export(tuned, a.out)
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument("--out", required=True, help="state_dict (.pt) to write")
     d.add_argument("--rounds", type=int, default=ds.rounds)
     d.add_argument("--tasks", type=int, default=ds.tasks, help="training tasks rolled out per round")
-    d.add_argument("--test-tasks", type=int, default=ds.test_tasks)
+    d.add_argument("--valid-tasks", type=int, default=ds.valid_tasks, help="first N valid tasks for the printed completion")
     d.add_argument("--epochs", type=int, default=ds.epochs, help="epochs over the aggregate per round")
     d.add_argument("--width", type=int, default=ds.width, help="hidden units of the 3-layer head")
     d.add_argument("--keep-rounds", type=int, default=ds.keep_rounds, help="train on the newest N rounds only (0: all)")
@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> None:
     q.add_argument("--batch-size", "--minibatch", type=int, default=ps.batch_size)
     q.add_argument("--warmup", type=int, default=fs.warmup, help="iterations that train only the value layers")
     q.add_argument("--eval-every", type=int, default=fs.eval_every)
-    q.add_argument("--test-tasks", type=int, default=fs.test_tasks, help="first N test tasks for the printed completion")
+    q.add_argument("--valid-tasks", type=int, default=fs.valid_tasks, help="first N valid tasks for the printed completion")
     q.add_argument("--seed", type=int, default=fs.seed, help="seed of PPO (stable-baselines3) and of the tasks drawn")
     q.add_argument("--checkpoint", help="state after every iteration (default: OUT.ckpt.pt)")
     q.add_argument("--resume", action="store_true", help="go on from --checkpoint (the same result as a run never stopped)")

@@ -370,7 +370,7 @@ def test_imitation_benchmark_runs_privileged_dagger(tmp_path):
 
     script = Path(__file__).resolve().parents[1] / "research" / "relocation_imitation.py"
     saved = tmp_path / "policy.pt"
-    out = subprocess.run([sys.executable, str(script), "--rounds", "2", "--tasks", "2", "--test-tasks", "2",
+    out = subprocess.run([sys.executable, str(script), "--rounds", "2", "--tasks", "2", "--valid-tasks", "2",
                           "--epochs", "1", "--save-policy", str(saved)],
                          capture_output=True, text=True, timeout=300, check=True).stdout
     weights = torch.load(saved, weights_only=True)

@@ -33,7 +33,7 @@ def _module(path: Path):
 def _small(script, iterations: int):
     """Step 2 on 2 envs, one warm-up iteration, no test in between, 4 minibatches per epoch."""
     return script.FinetuneSettings(ppo=replace(script.EXPERT_PPO, n_envs=2, batch_size=175), iterations=iterations,
-                                   warmup=1, eval_every=100, test_tasks=1)
+                                   warmup=1, eval_every=100, valid_tasks=1)
 
 
 def test_packaged_weights_load_without_pickle_and_give_distributions():
@@ -115,18 +115,29 @@ def test_worker_labels_with_the_configured_expert():
         assert np.array_equal(a.expert_actions, a.expert_probs.argmax(1))
 
 
-def test_training_script_runs_ppo_and_exports(tmp_path, capsys):
-    """Two PPO iterations (one critic-only) from a saved policy on 4 tasks; the export loads."""
+def test_training_script_runs_ppo_and_exports(tmp_path, capsys, monkeypatch):
+    """Two PPO iterations (one critic-only) from a saved policy on 4 tasks; the export loads; the
+    printed completions read the valid split, and nothing in the step reads the test split."""
+    from learner import relocation_expert_training as training
+
     script = _module(ROOT / "scripts" / "train_relocation_expert.py")
+    read: list[str] = []
+
+    def recorded(domain, split):
+        read.append(split)
+        return split_tasks(domain, split)
+
+    monkeypatch.setattr(training, "split_tasks", recorded)
     torch.manual_seed(1)
     init, out = tmp_path / "init.pt", tmp_path / "expert.npz"
     torch.save(script.build_policy(33, 256).state_dict(), init)
     script.main(["--threads", "1", "ppo", "--init", str(init), "--out", str(out), "--iterations", "2", "--n-envs", "4",
-                 "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])  # a former name too
+                 "--warmup", "1", "--eval-every", "2", "--valid-tasks", "2", "--minibatch", "256"])  # a former name too
     lines = capsys.readouterr().out.splitlines()
-    assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
+    assert lines[0].startswith("start: valid completion") and lines[-1].startswith("end: valid completion")
     assert lines[1].startswith("iteration 0:")  # the critic warm-up (no policy step: the test below checks)
-    assert lines[2].startswith("iteration 1:") and "test completion" in lines[2]
+    assert lines[2].startswith("iteration 1:") and "valid completion" in lines[2]
+    assert "valid" in read and "test" not in read
     start = torch.load(init, weights_only=True)
     with np.load(out, allow_pickle=False) as raw:
         assert sorted(raw.files) == sorted(["norm_mean", "norm_var", "norm_weight", "norm_bias",
@@ -160,7 +171,7 @@ def test_the_experts_ppo_stage_is_sb3_starting_from_the_dagger_policy():
     tuned = script.ppo_finetune(policy, settings, lines.append)
     assert any(not torch.equal(a, b) for a, b in zip(tuned.parameters(), policy.parameters()))
     assert torch.equal(tuned[0].running_mean, policy[0].running_mean)
-    assert lines[0].startswith("start: test completion") and lines[-1].startswith("end: test completion")
+    assert lines[0].startswith("start: valid completion") and lines[-1].startswith("end: valid completion")
 
 
 def _whole_and_stopped(script, tmp_path):

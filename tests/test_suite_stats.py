@@ -6,7 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from gpl_dist.app.suite.report import PAPER_TABLES, RunResult, cell, comparisons_markdown, healthy, table_markdown
+from gpl_dist.app.suite.report import (
+    PAPER_TABLES,
+    RunResult,
+    cell,
+    comparisons_markdown,
+    healthy,
+    provenance_markdown,
+    table_markdown,
+)
 from gpl_dist.app.suite.rundata import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
 from learner.driver import RoundMetrics
@@ -85,6 +93,10 @@ def test_a_run_dead_at_its_final_round_is_left_out_of_every_mean(tmp_path):
     md = table_markdown(kept, table, {"multiroom-gpl": (0, 1, 2)}, [r for r in results if r not in kept])
     gpl_line = next(line for line in md.splitlines() if line.startswith("| GPL |"))
     assert "2 training seed(s): 0, 1" in gpl_line and "left out: 2" in gpl_line and "not run yet" not in gpl_line
+    # the runs table lists every archived run, the one left out marked so
+    prov = provenance_markdown(kept, tmp_path, [r for r in results if r not in kept]).splitlines()
+    rows = {line.split("|")[2].strip(): line for line in prov if line.startswith("| multiroom-gpl |")}
+    assert sorted(rows) == ["0", "1", "2 (not valid: left out of the means)"]
 
 
 def test_comparisons_test_every_row_against_its_tables_gpl(tmp_path):
@@ -101,3 +113,9 @@ def test_comparisons_test_every_row_against_its_tables_gpl(tmp_path):
     retry = next(v for k, v in lines.items() if "retry control c5" in k and "gain" not in k)
     assert "tie" in retry  # 0.94 vs 1.0 +- a wide spread over 3 seeds
     assert any("gain over c0" in k for k in lines)
+    # a side short of the suite's planned seeds makes a verdict provisional, never a claim
+    planned = {"multiroom-gpl": (0, 1, 2), "multiroom-instruction": (0, 1, 2, 3, 4), "multiroom-retry": (0, 1, 2)}
+    short = {line.split("|")[1].strip(): line for line in comparisons_markdown(results, planned).splitlines()[2:]}
+    instr = next(v for k, v in short.items() if "Instruction c0" in k and "multiroom" in k)
+    assert "GPL above other (provisional: multiroom-instruction 3 of 5 seeds)" in instr
+    assert all("provisional" not in v for k, v in short.items() if "retry" in k)

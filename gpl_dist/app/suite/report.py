@@ -21,6 +21,7 @@ from __future__ import annotations
 import base64
 import html
 import statistics
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -590,8 +591,10 @@ def _values(results: list[RunResult], entry: str, evaluation: str, k: int, gain:
     return [r.completion[k] - r.completion[0] if gain else r.completion[k] for r in sorted(runs, key=lambda r: r.seed)]
 
 
-def comparisons_markdown(results: list[RunResult]) -> str:
-    """Welch's t-test (two-sided, p < 0.05) of every ``_comparisons`` pair with runs on both sides."""
+def comparisons_markdown(results: list[RunResult], planned: Mapping[str, tuple[int, ...]] | None = None) -> str:
+    """Welch's t-test (two-sided, p < 0.05) of every ``_comparisons`` pair with runs on both sides.
+    ``planned``: each entry's training seeds in the suite file; a side with fewer valid runs than
+    that marks the verdict provisional (the README counts one or two seeds as no evidence)."""
     lines = ["| comparison | GPL (mean, seeds) | other (mean, seeds) | difference | Welch t | df | p | verdict |",
              "|---|---|---|---|---|---|---|---|"]
     for c in _comparisons():
@@ -600,9 +603,15 @@ def comparisons_markdown(results: list[RunResult]) -> str:
         if not a or not b:
             continue
         w: Welch = welch(a, b)
+        verdict = w.verdict("GPL", "other")
+        short = [f"{name} {len(got)} of {len(want)} seeds" for name, got, want in
+                 ((c.entry, a, (planned or {}).get(c.entry, ())), (c.other, b, (planned or {}).get(c.other, ())))
+                 if len(got) < len(want)]
+        if short and w.p is not None:
+            verdict += f" (provisional: {'; '.join(short)})"
         lines.append(f"| {c.label} | {statistics.fmean(a):.3f} ({len(a)}) | {statistics.fmean(b):.3f} ({len(b)}) | "
                      f"{w.difference:+.3f} | {_fmt(w.t, '.2f')} | {_fmt(w.df, '.1f')} | {_fmt(w.p, '.3g')} | "
-                     f"{w.verdict('GPL', 'other')} |")
+                     f"{verdict} |")
     return "\n".join(lines)
 
 
@@ -711,12 +720,15 @@ REPRODUCING = ("**Re-training a run.** `gpl-dist suite run SUITE --out DIR --onl
                "bitwise reproduction on offer; \"not recorded\": trained before fingerprints were recorded.")
 
 
-def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:
-    """Per run: its archived dir (relative to ``report_dir``), config, code commits, the numerics
+def provenance_markdown(results: list[RunResult], report_dir: Path, left_out: Sequence[RunResult] = ()) -> str:
+    """Per run, every archived one (``results`` the valid, ``left_out`` those the health gate left
+    out, marked so): its archived dir (relative to ``report_dir``), config, code commits, the numerics
     fingerprint of the machine that trained it, wall times and evaluation files."""
     lines = ["| entry | seed | archived run dir (config: `config.yaml` there) | code commit(s) | numerics | train min | "
              "evaluations (file, min) |",
              "|---|---|---|---|---|---|---|"]
+    invalid = {r.run_dir for r in left_out}
+    results = [*results, *left_out]
     runs = sorted({(r.entry, r.seed, r.run_dir) for r in results})
     for entry, seed, run_dir in runs:
         mine = [r for r in results if r.run_dir == run_dir]
@@ -725,7 +737,8 @@ def provenance_markdown(results: list[RunResult], report_dir: Path) -> str:
         commits = ", ".join(first.commits)
         where = run_dir.relative_to(report_dir) if run_dir.is_relative_to(report_dir) else run_dir
         numerics = ", ".join(first.numerics) or "not recorded"
-        lines.append(f"| {entry} | {seed} | `{where}` | {commits} | {numerics} | {first.train_seconds / 60:.1f} | "
+        seed_cell = f"{seed} (not valid: left out of the means)" if run_dir in invalid else str(seed)
+        lines.append(f"| {entry} | {seed_cell} | `{where}` | {commits} | {numerics} | {first.train_seconds / 60:.1f} | "
                      f"{evals} |")
     train_s = sum({r.run_dir: r.train_seconds for r in results}.values())
     eval_s = sum(r.eval_seconds for r in results)
@@ -799,7 +812,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
     sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), over the valid "
-                 "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results)),
+                 "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results, planned)),
                 ("Budgets", "What each entry's runs spent (mean over its valid runs): the no-correction baselines "
                  "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
                 ("Still improving at the last round?", "Valid-split completion (after the last attempt) gained over "
@@ -843,7 +856,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
         html_parts.append(f'<img alt="sample complexity" src="data:image/png;base64,{data}">')
     effort = effort_markdown(results)
     settings = evaluations_markdown(results)
-    prov = provenance_markdown(results, out)
+    prov = provenance_markdown(results, out, excluded)
     effort_intro = ("What the corrections cost on the test tasks (evaluation 'test'): corrections and words of "
                     "correction before the first success, over the solved tasks; the fraction never solved within "
                     "the budget; the area under the completion curve over its length.")
