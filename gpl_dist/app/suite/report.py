@@ -498,13 +498,22 @@ def _paired_text(diff: MeanCI, p: float | None) -> str:
     return f"{ci}, p {'—' if p is None else f'{p:.2g}'}"
 
 
+#: A drop of the swap control's completion (own minus told another's, after the last attempt) that
+#: shows a run reads its instruction: five times the largest change of any run at the 0.02-0.03
+#: floor, where the control cannot tell (0.019 in the archive). An entry whose runs all either drop
+#: this much or score no lower has its no-lower runs named as not reading their instruction.
+READ_DROP = 0.1
+
+
 def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> str:
     """The instruction-swap control (``gpl_dist.app.suite.swap``, valid split) per entry, over its
     valid runs: completion with the tasks' own instructions and told another task's, after the
     first and the last attempt, each with the paired difference (swapped minus own) over training
     seeds, its 95 % t interval and two-sided p. Below the table, one a line: runs that are not
-    valid, runs measured on other weights or with another partner rule (left out), and valid runs
-    not measured yet."""
+    valid, runs measured on other weights or with another partner rule (left out), valid runs not
+    measured yet, and the valid runs that score no lower told another task's instruction after the
+    last attempt where the entry's other runs drop by ``READ_DROP`` or more (those runs do not read
+    their instruction; the entry's mean drop can hide them)."""
     runs: dict[str, dict[int, Path]] = {}
     for r in results:
         runs.setdefault(r.entry, {})[r.seed] = r.run_dir
@@ -513,7 +522,7 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
              "|---|---|---|---|---|---|---|"]
     notes: list[str] = []
     for entry in sorted(runs):
-        measured, unmeasured = [], []
+        measured, unmeasured, seeds = [], [], []
         for seed, run_dir in sorted(runs[entry].items()):
             sw = instruction_swap(run_dir)
             if sw is None:
@@ -530,10 +539,19 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
                              f"{sw.swapped[-1]:.3f}")
             else:
                 measured.append(sw)
+                seeds.append(seed)
         if unmeasured and measured:
             notes.append(f"- `{entry}`: seed(s) {', '.join(map(str, unmeasured))} not measured yet")
         if not measured:
             continue
+        blind = [(seed, sw) for seed, sw in zip(seeds, measured) if sw.swapped[-1] >= sw.own[-1]]
+        reading = [sw for sw in measured if sw.own[-1] - sw.swapped[-1] >= READ_DROP]
+        if blind and len(blind) + len(reading) == len(measured) and reading:
+            notes.append(f"- `{entry}` seed(s) {', '.join(str(seed) for seed, _ in blind)}: told another task's "
+                         "instruction, no lower after the last attempt ("
+                         + ", ".join(f"{sw.own[-1]:.3f} own, {sw.swapped[-1]:.3f} told another's" for _, sw in blind)
+                         + f"), where the entry's other runs drop by {READ_DROP} or more: these runs do not "
+                         "read their instruction")
         cells, verdicts = [], []
         for k in ((0, -1) if len(measured[0].own) > 1 else (0,)):
             own, swapped = [sw.own[k] for sw in measured], [sw.swapped[k] for sw in measured]
