@@ -430,6 +430,10 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     assert "+0.104" in table["rising"]
     assert "| flat |" in table["flat"] and "| — |" in table["flat"]
     assert "short" not in table
+    # a run without a curve to its last round is named as not checked, never silently dropped
+    md = plateau_markdown(results, {"rising-long": (0,)})
+    assert md.splitlines()[-1].startswith("Runs without a valid curve") and "`short` 1 of 1" in md
+    assert "`rising`" not in md.splitlines()[-1]
 
 
 def test_a_run_trained_again_under_the_same_numerics_gives_the_same_files_and_status_says_which(tmp_path, capsys):
