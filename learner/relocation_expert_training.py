@@ -330,9 +330,8 @@ def policy_of(model, like: nn.Sequential) -> nn.Sequential:
 #: Layout version of step 2's checkpoint (``save_ppo_checkpoint``). 2: the settings by
 #: ``FinetuneSettings``' names (``ppo.<PPOSettings field>``); 1 (read too): the former flat names.
 CHECKPOINT_FORMAT = 2
-#: Settings a resumed run may change: ``iterations`` extends or shortens it; the others only print
-#: (``test_tasks``: the former monitor of the test split, in checkpoints written before it read valid).
-_FREE_ON_RESUME = ("iterations", "eval_every", "valid_tasks", "test_tasks")
+#: Settings a resumed run may change: ``iterations`` extends or shortens it; the other two only print.
+_FREE_ON_RESUME = ("iterations", "eval_every", "valid_tasks")
 #: Format 1's settings by their names now (its ``max_kl`` was 1.5 x SB3's ``target_kl``) ...
 _FORMAT_1_NAMES = {"envs": "ppo.n_envs", "lr": "ppo.learning_rate", "critic_lr": "ppo.value_learning_rate",
                    "clip": "ppo.clip_range", "epochs": "ppo.n_epochs", "minibatch": "ppo.batch_size",

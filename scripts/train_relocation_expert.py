@@ -14,7 +14,9 @@ Deterministic for given arguments and torch thread count. The packaged weights a
 command's output as of commit ``a606b4c``, when step 2 was a hand-written PPO; step 2 is now
 stable-baselines3's PPO with that loop's numbers but SB3's details (``docs/design.md`` lists where
 they differ), and the asset is kept: a full run of the new stage completes less from the start state
-(0.964 against 0.969; ``docs/design.md``). ``docs/history.md`` has the earlier figures.
+(0.964 against 0.969; ``docs/design.md``). ``docs/history.md`` has the earlier figures. Those figures
+are on the first 100 test tasks, which the stage printed until 2026-12-06; it prints valid tasks now,
+so a re-run does not print them again.
 """
 
 from __future__ import annotations
@@ -76,7 +78,8 @@ def main(argv: list[str] | None = None) -> None:
     d.add_argument("--out", required=True, help="state_dict (.pt) to write")
     d.add_argument("--rounds", type=int, default=ds.rounds)
     d.add_argument("--tasks", type=int, default=ds.tasks, help="training tasks rolled out per round")
-    d.add_argument("--valid-tasks", type=int, default=ds.valid_tasks, help="first N valid tasks for the printed completion")
+    d.add_argument("--valid-tasks", "--test-tasks", type=int, default=ds.valid_tasks,
+                   help="first N valid tasks for the printed completion")
     d.add_argument("--epochs", type=int, default=ds.epochs, help="epochs over the aggregate per round")
     d.add_argument("--width", type=int, default=ds.width, help="hidden units of the 3-layer head")
     d.add_argument("--keep-rounds", type=int, default=ds.keep_rounds, help="train on the newest N rounds only (0: all)")
@@ -87,7 +90,8 @@ def main(argv: list[str] | None = None) -> None:
     q.add_argument("--init", required=True, help="state_dict from the dagger step")
     q.add_argument("--out", required=True, help=".npz to write")
     q.add_argument("--iterations", type=int, default=fs.iterations)
-    # SB3's names (PPOSettings'), each with its former spelling
+    # SB3's names (PPOSettings'), each with its former spelling (as --valid-tasks: an old command line
+    # still resumes; the tasks it counts are valid ones now)
     q.add_argument("--n-envs", "--envs", type=int, default=ps.n_envs, help="training tasks rolled out per iteration")
     q.add_argument("--learning-rate", "--lr", type=float, default=ps.learning_rate, help="the policy's Adam rate")
     q.add_argument("--clip-range", "--clip", type=float, default=ps.clip_range)
@@ -95,7 +99,8 @@ def main(argv: list[str] | None = None) -> None:
     q.add_argument("--batch-size", "--minibatch", type=int, default=ps.batch_size)
     q.add_argument("--warmup", type=int, default=fs.warmup, help="iterations that train only the value layers")
     q.add_argument("--eval-every", type=int, default=fs.eval_every)
-    q.add_argument("--valid-tasks", type=int, default=fs.valid_tasks, help="first N valid tasks for the printed completion")
+    q.add_argument("--valid-tasks", "--test-tasks", type=int, default=fs.valid_tasks,
+                   help="first N valid tasks for the printed completion")
     q.add_argument("--seed", type=int, default=fs.seed, help="seed of PPO (stable-baselines3) and of the tasks drawn")
     q.add_argument("--checkpoint", help="state after every iteration (default: OUT.ckpt.pt)")
     q.add_argument("--resume", action="store_true", help="go on from --checkpoint (the same result as a run never stopped)")

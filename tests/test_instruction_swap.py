@@ -139,18 +139,19 @@ def test_the_report_pairs_the_swap_by_training_seed_and_calls_a_significant_drop
     p = t_two_sided_p(diff.mean / (diff.sd / 3 ** 0.5), 2)
     assert f"| 3 | 0.000, 0.000 | +0.000 ± 0.000, p 1 | {sum(own) / 3:.3f}, {sum(swapped) / 3:.3f} | " in row
     assert f"| {diff.mean:+.3f} ± {diff.half_width:.3f}, p {p:.2g} | yes |" in row and p < 0.05
-    # a run of the entry that scores no lower told another task's instruction is named: it does not read it
-    for seed, (o, s) in enumerate(((0.90, 0.70), (0.80, 0.82), (0.95, 0.74))):
+    # runs of the entry less than FLOOR_CHANGE lower told another task's instruction (one higher, one
+    # a noise dip lower) are named, beside one that drops by READ_DROP or more: they do not read it
+    for seed, (o, s) in enumerate(((0.90, 0.70), (0.80, 0.82), (0.95, 0.94))):
         path = out / "multiroom-gpl" / f"seed{seed}" / SWAP_FILE
         record = json.loads(path.read_text())
         record["own"]["completion"], record["swapped"]["completion"] = [0.0, o], [0.0, s]
         path.write_text(json.dumps(record))
     md = swap_markdown(results, health_of(results))
-    assert ("- `multiroom-gpl` seed(s) 1: told another task's instruction, no lower after the last attempt "
-            "(0.800 own, 0.820 told another's)") in md
-    assert "seed(s) 0" not in md and "seed(s) 2" not in md
-    # at the floor, where no run drops by READ_DROP, nothing is named: the control cannot tell there
-    for seed, (o, s) in enumerate(((0.030, 0.020), (0.020, 0.025), (0.025, 0.018))):
+    assert ("- `multiroom-gpl` seed(s) 1, 2: told another task's instruction, less than 0.02 lower after the last "
+            "attempt (0.800 own, 0.820 told another's, 0.950 own, 0.940 told another's)") in md
+    # at the floor, where no run drops by READ_DROP, nothing is named, though every run is within
+    # FLOOR_CHANGE: the control cannot tell there
+    for seed, (o, s) in enumerate(((0.030, 0.031), (0.020, 0.025), (0.025, 0.018))):
         path = out / "multiroom-gpl" / f"seed{seed}" / SWAP_FILE
         record = json.loads(path.read_text())
         record["own"]["completion"], record["swapped"]["completion"] = [0.0, o], [0.0, s]

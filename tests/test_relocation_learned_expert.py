@@ -31,7 +31,7 @@ def _module(path: Path):
 
 
 def _small(script, iterations: int):
-    """Step 2 on 2 envs, one warm-up iteration, no test in between, 4 minibatches per epoch."""
+    """Step 2 on 2 envs, one warm-up iteration, no valid-split completion in between, 4 minibatches per epoch."""
     return script.FinetuneSettings(ppo=replace(script.EXPERT_PPO, n_envs=2, batch_size=175), iterations=iterations,
                                    warmup=1, eval_every=100, valid_tasks=1)
 
@@ -132,7 +132,7 @@ def test_training_script_runs_ppo_and_exports(tmp_path, capsys, monkeypatch):
     init, out = tmp_path / "init.pt", tmp_path / "expert.npz"
     torch.save(script.build_policy(33, 256).state_dict(), init)
     script.main(["--threads", "1", "ppo", "--init", str(init), "--out", str(out), "--iterations", "2", "--n-envs", "4",
-                 "--warmup", "1", "--eval-every", "2", "--valid-tasks", "2", "--minibatch", "256"])  # a former name too
+                 "--warmup", "1", "--eval-every", "2", "--test-tasks", "2", "--minibatch", "256"])  # former names too
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("start: valid completion") and lines[-1].startswith("end: valid completion")
     assert lines[1].startswith("iteration 0:")  # the critic warm-up (no policy step: the test below checks)

@@ -14,6 +14,7 @@ from gpl_dist.app.suite.report import (
     healthy,
     provenance_markdown,
     table_markdown,
+    wanted_runs,
 )
 from gpl_dist.app.suite.rundata import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
@@ -114,8 +115,11 @@ def test_comparisons_test_every_row_against_its_tables_gpl(tmp_path):
     assert "tie" in retry  # 0.94 vs 1.0 +- a wide spread over 3 seeds
     assert any("gain over c0" in k for k in lines)
     # a side short of the suite's planned seeds makes a verdict provisional, never a claim
-    planned = {"multiroom-gpl": (0, 1, 2), "multiroom-instruction": (0, 1, 2, 3, 4), "multiroom-retry": (0, 1, 2)}
-    short = {line.split("|")[1].strip(): line for line in comparisons_markdown(results, planned).splitlines()[2:]}
+    planned = {"multiroom-gpl": (0, 1, 2, 3), "multiroom-instruction": (0, 1, 2, 3, 4), "multiroom-retry": (0, 1, 2)}
+    left_out = [RunResult("multiroom-gpl", 3, d, "test", (0.02, 0.1), d, (), (), 1, 1)]  # seed 3 stands in for it
+    wanted = wanted_runs(planned, left_out)
+    assert wanted == {"multiroom-gpl": 3, "multiroom-instruction": 5, "multiroom-retry": 3}
+    short = {line.split("|")[1].strip(): line for line in comparisons_markdown(results, wanted).splitlines()[2:]}
     instr = next(v for k, v in short.items() if "Instruction c0" in k and "multiroom" in k)
     assert "GPL above other (provisional: multiroom-instruction 3 of 5 seeds)" in instr
     assert all("provisional" not in v for k, v in short.items() if "retry" in k)

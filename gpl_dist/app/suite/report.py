@@ -501,10 +501,12 @@ def _paired_text(diff: MeanCI, p: float | None) -> str:
     return f"{ci}, p {'—' if p is None else f'{p:.2g}'}"
 
 
-#: A drop of the swap control's completion (own minus told another's, after the last attempt) that
-#: shows a run reads its instruction: five times the largest change of any run at the 0.02-0.03
-#: floor, where the control cannot tell (0.019 in the archive). An entry whose runs all either drop
-#: this much or score no lower has its no-lower runs named as not reading their instruction.
+#: The largest change of the swap control's completion (own minus told another's, after the last
+#: attempt) of any run at the 0.02-0.03 floor, where the control cannot tell (0.019 in the archive):
+#: a run that drops less does not measurably read its instruction.
+FLOOR_CHANGE = 0.02
+#: A drop that shows a run reads its instruction: five times ``FLOOR_CHANGE``. Where some runs of an
+#: entry drop this much, its runs that drop less than ``FLOOR_CHANGE`` are named as not reading theirs.
 READ_DROP = 0.1
 
 
@@ -514,9 +516,9 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
     first and the last attempt, each with the paired difference (swapped minus own) over training
     seeds, its 95 % t interval and two-sided p. Below the table, one a line: runs that are not
     valid, runs measured on other weights or with another partner rule (left out), valid runs not
-    measured yet, and the valid runs that score no lower told another task's instruction after the
-    last attempt where the entry's other runs drop by ``READ_DROP`` or more (those runs do not read
-    their instruction; the entry's mean drop can hide them)."""
+    measured yet, and the valid runs that drop less than ``FLOOR_CHANGE`` told another task's
+    instruction after the last attempt where some of the entry's runs drop by ``READ_DROP`` or more
+    (those runs do not read their instruction; the entry's mean drop can hide them)."""
     runs: dict[str, dict[int, Path]] = {}
     for r in results:
         runs.setdefault(r.entry, {})[r.seed] = r.run_dir
@@ -547,13 +549,12 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
             notes.append(f"- `{entry}`: seed(s) {', '.join(map(str, unmeasured))} not measured yet")
         if not measured:
             continue
-        blind = [(seed, sw) for seed, sw in zip(seeds, measured) if sw.swapped[-1] >= sw.own[-1]]
-        reading = [sw for sw in measured if sw.own[-1] - sw.swapped[-1] >= READ_DROP]
-        if blind and len(blind) + len(reading) == len(measured) and reading:
+        blind = [(seed, sw) for seed, sw in zip(seeds, measured) if sw.own[-1] - sw.swapped[-1] < FLOOR_CHANGE]
+        if blind and any(sw.own[-1] - sw.swapped[-1] >= READ_DROP for sw in measured):
             notes.append(f"- `{entry}` seed(s) {', '.join(str(seed) for seed, _ in blind)}: told another task's "
-                         "instruction, no lower after the last attempt ("
+                         f"instruction, less than {FLOOR_CHANGE} lower after the last attempt ("
                          + ", ".join(f"{sw.own[-1]:.3f} own, {sw.swapped[-1]:.3f} told another's" for _, sw in blind)
-                         + f"), where the entry's other runs drop by {READ_DROP} or more: these runs do not "
+                         + f"), where some of the entry's runs drop by {READ_DROP} or more: these runs do not "
                          "read their instruction")
         cells, verdicts = [], []
         for k in ((0, -1) if len(measured[0].own) > 1 else (0,)):
@@ -612,10 +613,10 @@ def _values(results: list[RunResult], entry: str, evaluation: str, k: int, gain:
     return [r.completion[k] - r.completion[0] if gain else r.completion[k] for r in sorted(runs, key=lambda r: r.seed)]
 
 
-def comparisons_markdown(results: list[RunResult], planned: Mapping[str, tuple[int, ...]] | None = None) -> str:
+def comparisons_markdown(results: list[RunResult], wanted: Mapping[str, int] | None = None) -> str:
     """Welch's t-test (two-sided, p < 0.05) of every ``_comparisons`` pair with runs on both sides.
-    ``planned``: each entry's training seeds in the suite file; a side with fewer valid runs than
-    that marks the verdict provisional (the README counts one or two seeds as no evidence)."""
+    ``wanted``: each entry's valid runs the suite aims at (``wanted_runs``); a side with fewer marks
+    the verdict provisional (the README counts one or two seeds as no evidence)."""
     lines = ["| comparison | GPL (mean, seeds) | other (mean, seeds) | difference | Welch t | df | p | verdict |",
              "|---|---|---|---|---|---|---|---|"]
     for c in _comparisons():
@@ -625,15 +626,21 @@ def comparisons_markdown(results: list[RunResult], planned: Mapping[str, tuple[i
             continue
         w: Welch = welch(a, b)
         verdict = w.verdict("GPL", "other")
-        short = [f"{name} {len(got)} of {len(want)} seeds" for name, got, want in
-                 ((c.entry, a, (planned or {}).get(c.entry, ())), (c.other, b, (planned or {}).get(c.other, ())))
-                 if len(got) < len(want)]
+        short = [f"{name} {len(got)} of {want} seeds" for name, got in ((c.entry, a), (c.other, b))
+                 if len(got) < (want := (wanted or {}).get(name, 0))]
         if short and w.p is not None:
             verdict += f" (provisional: {'; '.join(short)})"
         lines.append(f"| {c.label} | {statistics.fmean(a):.3f} ({len(a)}) | {statistics.fmean(b):.3f} ({len(b)}) | "
                      f"{w.difference:+.3f} | {_fmt(w.t, '.2f')} | {_fmt(w.df, '.1f')} | {_fmt(w.p, '.3g')} | "
                      f"{verdict} |")
     return "\n".join(lines)
+
+
+def wanted_runs(planned: Mapping[str, tuple[int, ...]], left_out: Sequence[RunResult]) -> dict[str, int]:
+    """Each entry's valid runs the suite aims at: its planned seeds less those the health gate left
+    out (the suite file gives such an entry a seed more in its place)."""
+    return {entry: len(seeds) - len({r.seed for r in left_out if r.entry == entry and r.seed in seeds})
+            for entry, seeds in planned.items()}
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -839,8 +846,9 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             parts.append(f"![{table.key}]({png.name})")
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
+    wanted = wanted_runs(planned, excluded)
     sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), over the valid "
-                 "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results, planned)),
+                 "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results, wanted)),
                 ("Budgets", "What each entry's runs spent (mean over its valid runs): the no-correction baselines "
                  "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
                 ("Still improving at the last round?", "Valid-split completion (after the last attempt) gained over "
