@@ -415,9 +415,9 @@ def ppo_finetune(policy: nn.Sequential, s: FinetuneSettings, log: Callable[[str]
                  on_eval: Callable[[nn.Module], None] | None = None, checkpoint: str | None = None,
                  resume: bool = False) -> nn.Sequential:
     """Step 2 (module docstring): SB3's PPO from ``policy``; returns the fine-tuned policy (a new
-    network); ``on_eval`` gets it at every valid-split completion. With ``checkpoint``, the state is saved there
-    after every iteration; ``resume`` goes on from it, and the result is the same as a run never
-    stopped (for the same torch thread count)."""
+    network); ``on_eval`` gets it at every valid-split completion. With ``checkpoint``, the state is
+    saved there after every iteration; ``resume`` goes on from it, and the result is the same as a
+    run never stopped (for the same torch thread count)."""
     from stable_baselines3.common.callbacks import BaseCallback
 
     model = sb3_ppo(policy, s)

@@ -8,8 +8,8 @@
    trains ``--epochs`` epochs with cross-entropy. Printed per round: completion on the training
    rollouts, the policy's KL to the expert on the states it has just visited (before training on
    them: DAgger's on-policy error), the KL on the training states, and completion on
-   ``--valid-tasks`` held-out tasks of the valid split. Whatever this reaches is a ceiling for GPL, which must infer
-   the target from language.
+   ``--valid-tasks`` held-out tasks of the valid split. Whatever this reaches is a ceiling for GPL,
+   which must infer the target from language.
 2. **Failure modes of a run** (``--run-dir``): rolls a GPL checkpoint out on valid tasks with
    corrections and classifies the attempts that end below 0.9 completion by where the block
    stopped: past the target in x (the expert needs its back pose to push -x), short of it, or

@@ -527,7 +527,7 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
              "|---|---|---|---|---|---|---|"]
     notes: list[str] = []
     for entry in sorted(runs):
-        measured, unmeasured, seeds = [], [], []
+        measured, unmeasured, by_seed = [], [], {}
         for seed, run_dir in sorted(runs[entry].items()):
             sw = instruction_swap(run_dir)
             if sw is None:
@@ -544,16 +544,18 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
                              f"{sw.swapped[-1]:.3f}")
             else:
                 measured.append(sw)
-                seeds.append(seed)
+                by_seed[seed] = sw
         if unmeasured and measured:
             notes.append(f"- `{entry}`: seed(s) {', '.join(map(str, unmeasured))} not measured yet")
         if not measured:
             continue
-        blind = [(seed, sw) for seed, sw in zip(seeds, measured) if sw.own[-1] - sw.swapped[-1] < FLOOR_CHANGE]
-        if blind and any(sw.own[-1] - sw.swapped[-1] >= READ_DROP for sw in measured):
-            notes.append(f"- `{entry}` seed(s) {', '.join(str(seed) for seed, _ in blind)}: told another task's "
+        drop = {seed: sw.own[-1] - sw.swapped[-1] for seed, sw in by_seed.items()}  # after the last attempt
+        blind = [seed for seed, d in drop.items() if d < FLOOR_CHANGE]
+        if blind and max(drop.values()) >= READ_DROP:
+            notes.append(f"- `{entry}` seed(s) {', '.join(map(str, blind))}: told another task's "
                          f"instruction, less than {FLOOR_CHANGE} lower after the last attempt ("
-                         + ", ".join(f"{sw.own[-1]:.3f} own, {sw.swapped[-1]:.3f} told another's" for _, sw in blind)
+                         + ", ".join(f"{by_seed[s].own[-1]:.3f} own, {by_seed[s].swapped[-1]:.3f} told another's"
+                                     for s in blind)
                          + f"), where some of the entry's runs drop by {READ_DROP} or more: these runs do not "
                          "read their instruction")
         cells, verdicts = [], []
