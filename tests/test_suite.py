@@ -410,7 +410,8 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
 
     metrics = REPO / "docs" / "paper-report" / "runs" / "multiroom-full-info" / "seed0" / "metrics.jsonl"
     rounds = len({json.loads(line)["round"] for line in metrics.read_text().splitlines() if line.strip()})
-    gains = {"rising": (0.10, 0.12, 0.09, 0.11, 0.10), "flat": (0.02, -0.03, 0.01, -0.01, 0.0)}
+    gains = {"rising": (0.10, 0.12, 0.09, 0.11, 0.10), "flat": (0.02, -0.03, 0.01, -0.01, 0.0),
+             "peaked": (0.0,) * 5}
     results = []
     for entry, by_seed in gains.items():
         for seed, gain in enumerate(by_seed):
@@ -418,6 +419,8 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
             run_dir.mkdir(parents=True)
             shutil.copy(metrics, run_dir / "metrics.jsonl")
             values = [[0.5]] * (rounds - 1) + [[0.5 + gain]]
+            if entry == "peaked":  # best at round 1 (0.8 + 0.02 * seed), flat at 0.6 over its last round
+                values = [[0.5], [0.8 + 0.02 * seed]] + [[0.6]] * (rounds - 2)
             (run_dir / CURVE_FILE).write_text(json.dumps({"rounds": list(range(rounds)), "completion": values}))
             results.append(RunResult(entry, seed, run_dir, "test", (0.5,), run_dir / "eval.json", (), (), 0.0, 0.0))
     short = tmp_path / "short" / "seed0"  # a curve stopped before the last round
@@ -429,6 +432,9 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     assert "still rising" in table["rising"] and "`rising-long` (not run yet)" in table["rising"]
     assert "+0.104" in table["rising"]
     assert "| flat |" in table["flat"] and "| — |" in table["flat"]
+    # a curve that peaked and fell shows its best rounds beside a 'flat' end
+    assert "| flat |" in table["peaked"] and "| 1, 1, 1, 1, 1: 0.840 |" in table["peaked"]
+    assert f"| {', '.join([str(rounds - 1)] * 5)}: 0.604 |" in table["rising"]
     assert "short" not in table
     # a run without a curve to its last round is named as not checked, never silently dropped
     md = plateau_markdown(results, {"rising-long": (0,)})

@@ -655,9 +655,13 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
     (``curve-valid.json``, ``gpl-dist suite curves``); over the entry's valid runs, the mean gain
     with its 95 % t interval and the two-sided p of the t test against 0. 'still rising' when the
     gain is significantly above 0, 'flat' when it is a tie with 0. The suite trains an entry that
-    was still rising for more rounds under the name ``<entry>-long``, and both are reported."""
+    was still rising for more rounds under the name ``<entry>-long``, and both are reported. Beside
+    it, each run's best round on the valid curve and the mean of those best values, so that a curve
+    that peaked and fell (flat at its end, below its best) shows; descriptive only (a maximum over
+    rounds is biased upwards), and the reported weights stay the last round's."""
     lines = ["| entry | runs with a curve | last round | valid completion there | gain over the last round "
-             "(95 % t), p | verdict | trained longer |", "|---|---|---|---|---|---|---|"]
+             "(95 % t), p | verdict | best round per run: valid there (mean) | trained longer |",
+             "|---|---|---|---|---|---|---|---|"]
     runs: dict[str, set[Path]] = {}
     for r in results:
         runs.setdefault(r.entry, set()).add(r.run_dir)
@@ -678,8 +682,11 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
         had = f"`{longer}` ({n_long} run{'' if n_long == 1 else 's'})" if n_long else \
             f"`{longer}` (not run yet)" if longer in planned else "—"
         rounds = sorted({c.rounds[-1] for c in curves})
+        best = [max(range(len(c.valid)), key=lambda i, c=c: c.valid[i][-1]) for c in curves]  # first best on a tie
+        best_text = (f"{', '.join(str(c.valid_rounds[i]) for c, i in zip(curves, best))}: "
+                     f"{statistics.fmean(c.valid[i][-1] for c, i in zip(curves, best)):.3f}")
         lines.append(f"| {entry} | {len(curves)} | {', '.join(map(str, rounds))} | {statistics.fmean(last):.3f} | "
-                     f"{_paired_text(diff, p)} | {verdict} | {had} |")
+                     f"{_paired_text(diff, p)} | {verdict} | {best_text} | {had} |")
     if uncurved:
         lines.append("\nRuns without a valid curve to their last round, not checked here (`gpl-dist suite curves` "
                      "computes one from a run's per-round weights, which these runs no longer have): "
@@ -855,7 +862,9 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
                 ("Still improving at the last round?", "Valid-split completion (after the last attempt) gained over "
                  "each run's last DAgger round, from the learning curves above, paired by training seed: an entry "
-                 "still rising is trained on under `<entry>-long` until its curve is flat, and both are reported.",
+                 "still rising is trained on under `<entry>-long` until its curve is flat, and both are reported. "
+                 "Each run's best round on its valid curve stands beside, so that a curve which peaked and fell "
+                 "shows (descriptive: a maximum over rounds flatters; the reported weights are the last round's).",
                  plateau_markdown(results, planned)),
                 ("Run health", "Each run's conditioning encoders at its final round (dead / units: i instruction, "
                  "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
