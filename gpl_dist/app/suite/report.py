@@ -682,7 +682,7 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
         had = f"`{longer}` ({n_long} run{'' if n_long == 1 else 's'})" if n_long else \
             f"`{longer}` (not run yet)" if longer in planned else "—"
         rounds = sorted({c.rounds[-1] for c in curves})
-        best = [max(range(len(c.valid)), key=lambda i, c=c: c.valid[i][-1]) for c in curves]  # first best on a tie
+        best = [max(range(len(c.valid)), key=[v[-1] for v in c.valid].__getitem__) for c in curves]  # first best on a tie
         best_text = (f"{', '.join(str(c.valid_rounds[i]) for c, i in zip(curves, best))}: "
                      f"{statistics.fmean(c.valid[i][-1] for c, i in zip(curves, best)):.3f}")
         lines.append(f"| {entry} | {len(curves)} | {', '.join(map(str, rounds))} | {statistics.fmean(last):.3f} | "
