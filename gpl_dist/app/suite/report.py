@@ -32,6 +32,7 @@ from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.rundata import (
     SWAP_FILE,
+    InstructionSwap,
     RunBudget,
     RunHealth,
     instruction_swap,
@@ -527,7 +528,8 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
              "|---|---|---|---|---|---|---|"]
     notes: list[str] = []
     for entry in sorted(runs):
-        measured, unmeasured, by_seed = [], [], {}
+        unmeasured: list[int] = []
+        by_seed: dict[int, InstructionSwap] = {}
         for seed, run_dir in sorted(runs[entry].items()):
             sw = instruction_swap(run_dir)
             if sw is None:
@@ -543,8 +545,8 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
                              f"own instructions, {sw.swapped[0]:.3f} told another task's; last {sw.own[-1]:.3f}, "
                              f"{sw.swapped[-1]:.3f}")
             else:
-                measured.append(sw)
                 by_seed[seed] = sw
+        measured = list(by_seed.values())
         if unmeasured and measured:
             notes.append(f"- `{entry}`: seed(s) {', '.join(map(str, unmeasured))} not measured yet")
         if not measured:
@@ -673,8 +675,9 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
             uncurved.append(f"`{entry}` {len(runs[entry]) - len(curves)} of {len(runs[entry])}")
         if not curves:
             continue
-        last = [c.valid[-1][-1] for c in curves]
-        diff, p = _paired([c.valid[-2][-1] for c in curves], last)
+        finals = [[v[-1] for v in c.valid] for c in curves]  # each round's completion after the last attempt
+        last = [f[-1] for f in finals]
+        diff, p = _paired([f[-2] for f in finals], last)
         verdict = ("— (one run)" if p is None else "still rising" if p < ALPHA and diff.mean > 0
                    else "falling" if p < ALPHA else "flat")
         longer = f"{entry}-long"
@@ -682,9 +685,9 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
         had = f"`{longer}` ({n_long} run{'' if n_long == 1 else 's'})" if n_long else \
             f"`{longer}` (not run yet)" if longer in planned else "—"
         rounds = sorted({c.rounds[-1] for c in curves})
-        best = [max(range(len(c.valid)), key=[v[-1] for v in c.valid].__getitem__) for c in curves]  # first best on a tie
+        best = [f.index(max(f)) for f in finals]  # the first best on a tie
         best_text = (f"{', '.join(str(c.valid_rounds[i]) for c, i in zip(curves, best))}: "
-                     f"{statistics.fmean(c.valid[i][-1] for c, i in zip(curves, best)):.3f}")
+                     f"{statistics.fmean(f[i] for f, i in zip(finals, best)):.3f}")
         lines.append(f"| {entry} | {len(curves)} | {', '.join(map(str, rounds))} | {statistics.fmean(last):.3f} | "
                      f"{_paired_text(diff, p)} | {verdict} | {best_text} | {had} |")
     if uncurved:
