@@ -133,5 +133,8 @@ def _spec_problems(spec: DomainSpec) -> list[str]:
         (spec.trajectory_stride >= 1, "trajectory_stride must be at least 1"),
         (len(spec.obs_shape) != 3 or spec.obs_categories is not None, "grid observations need obs_categories"),
         (spec.splits is None or set(spec.splits) == set(spec.split_names), "splits must name exactly split_names"),
+        (set(spec.valid_splits) | set(spec.valid_splits.values()) <= set(spec.split_names),
+         "valid_splits must map split_names to split_names"),
+        (not any("test" in v for v in spec.valid_splits.values()), "a valid split must not be a test split"),
     ]
     return [message for ok, message in checks if not ok]

@@ -56,6 +56,9 @@ class DomainSpec:
         split_names: names of the task splits.
         train_split: the split a run collects on unless ``env.train_split`` names another.
         eval_split: the split a meta-test reads unless ``eval.split`` names another.
+        valid_splits: training split -> the split its runs are chosen on (the learning curve and
+            the instruction-swap control): tasks of neither that training split nor any test split.
+            A run on a training split not listed has no valid split.
         experts: expert kind -> factory of an ``Expert`` (the first kind is the default).
         correction_kinds: kinds ``make_corrector`` accepts; ``default`` is the paper's oracle.
         make_corrector: ``make_corrector(kind)`` -> ``CorrectionOracle``.
@@ -100,6 +103,7 @@ class DomainSpec:
     paraphrases: Paraphrases | None = None
     train_split: str = "train"
     eval_split: str = "test"
+    valid_splits: Mapping[str, str] = field(default_factory=dict)
 
     def vocabulary_for(self, paraphrases: bool) -> Vocabulary:
         """The vocabulary of a model trained with (``paraphrases``) or without paraphrases: the

@@ -43,6 +43,14 @@ def split_tasks(domain: str, split: str) -> tuple[int, ...]:
     return splits[split]
 
 
+def valid_split(domain: str, train_split: str) -> str | None:
+    """The split runs trained on ``train_split`` are chosen on (``DomainSpec.valid_splits``);
+    None when that training split has none."""
+    from gpl_dist.domains import get_domain
+
+    return get_domain(domain).valid_splits.get(train_split)
+
+
 def split_of(domain: str, task_id: int, preferred: tuple[str, ...] = ("train", "test")) -> str:
     """Name of the first split among ``preferred`` that holds ``task_id`` (``"none"`` otherwise)."""
     splits = load_splits(domain)

@@ -33,7 +33,7 @@ from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import PolicyNetwork, build_model_from_config
 from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
 from gpl_dist.seeding import evaluation_seed
-from gpl_dist.splits import split_tasks
+from gpl_dist.splits import split_tasks, valid_split
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
 from learner.identity import read_identity, resolve_identity
@@ -353,7 +353,12 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     if ckpt_run is None and not foreign_checkpoint:  # saved before run ids: the run's own (checked above)
         ckpt_run = resolve_identity(run_dir, cfg.buffer.location or str(run_dir / "buffer")).run_id
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
-    split = split or ("valid" if swap_instructions else cfg.eval.split)
+    if split is None and swap_instructions:  # a diagnostic: the run's valid split, never a test split
+        split = valid_split(cfg.env.domain, cfg.env.train_split)
+        if split is None:
+            raise UsageError(f"{run_dir} trained on '{cfg.env.train_split}', which has no valid split: "
+                             "name the split to swap instructions on with --split")
+    split = split or cfg.eval.split
     greedy = cfg.eval.greedy_actions if greedy is None else greedy
     seeds = tuple(seeds or cfg.eval.seeds)
     max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks

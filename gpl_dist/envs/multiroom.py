@@ -488,6 +488,11 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
       the splits above are unchanged) tests the same model in distribution and ``heldout4_train``
       is the rest (779: fewer than 1700, as a task has 4 objects); ``heldout4_test``: every task
       whose true object is held out (720).
+    - ``heldout4_valid`` (version 3): the tasks of none of the ``heldout4_*`` splits above, that is
+      every task whose true object is seen in training and some decoy is held out (1491). The
+      ``heldout4`` runs are chosen on it (learning curve, instruction-swap control): it holds no
+      task they train on and no test task. No valid task can have a held-out true object, as every
+      such task is in ``heldout4_test``.
     """
     rng = np.random.default_rng(seed)
     perm = rng.permutation(NUM_TASKS)
@@ -504,6 +509,7 @@ def make_splits(seed: int = 0) -> dict[str, list[int]]:
         "heldout4_train": sorted(int(t) for t in order4[HELDOUT4_INDIST_TASKS:]),
         "heldout4_indist_test": sorted(int(t) for t in order4[:HELDOUT4_INDIST_TASKS]),
         "heldout4_test": sorted(heldout4_test),
+        "heldout4_valid": sorted(set(range(NUM_TASKS)) - set(clean4) - set(heldout4_test)),
     }
 
 
@@ -535,7 +541,8 @@ SPLIT_NOTE = (
     f"({', '.join(' '.join(c) for c in HELDOUT_OBJECTS)}); heldout_test = all tasks whose true object is held out; "
     f"version 2 adds heldout4_* with HELDOUT4_OBJECTS ({', '.join(' '.join(c) for c in HELDOUT4_OBJECTS)}): "
     f"heldout4_indist_test = {HELDOUT4_INDIST_TASKS} tasks without a held-out object (own stream), heldout4_train = "
-    "the other such tasks, heldout4_test = all tasks whose true object is held out"
+    "the other such tasks, heldout4_test = all tasks whose true object is held out; version 3 adds heldout4_valid "
+    "= every task in none of the heldout4 splits (true object seen, a decoy held out)"
 )
 
 DOMAIN = DomainSpec(
@@ -550,7 +557,8 @@ DOMAIN = DomainSpec(
     vocabulary=VOCABULARY,
     make_env=make_env,
     split_names=("train", "valid", "test", "heldout_train", "heldout_test", "heldout4_train", "heldout4_indist_test",
-                 "heldout4_test"),
+                 "heldout4_test", "heldout4_valid"),
+    valid_splits={"train": "valid", "heldout4_train": "heldout4_valid"},
     experts={"scripted": lazy("gpl_dist.experts.multiroom:MultiRoomExpert")},
     correction_kinds=CORRECTION_KINDS,
     make_corrector=lazy("gpl_dist.corrections.multiroom:make_multiroom_corrector"),
@@ -576,4 +584,4 @@ OBJECT_COLOURS = COLOURS
 if __name__ == "__main__":  # regenerate the split file: python -m gpl_dist.envs.multiroom
     from gpl_dist.splits import write_splits
 
-    print(write_splits("multiroom", make_splits(0), seed=0, note=SPLIT_NOTE, version=2))
+    print(write_splits("multiroom", make_splits(0), seed=0, note=SPLIT_NOTE, version=3))

@@ -368,6 +368,7 @@ DOMAIN = DomainSpec(
     vocabulary=VOCABULARY,
     make_env=make_env,
     split_names=("train", "valid", "test"),
+    valid_splits={"train": "valid"},
     experts={"scripted": lazy("gpl_dist.experts.relocation:RelocationExpert"),
              "learned": lazy("gpl_dist.experts.relocation_learned:LearnedRelocationExpert")},
     correction_kinds=CORRECTION_KINDS,

@@ -6,14 +6,18 @@ written into each run dir as ``curve-valid.json`` (``evidence.CURVE_FILE``), whi
 keeps and the report draws. Whether a baseline was still improving at its last round is read
 here, never on the test split.
 
-The curve is cheaper than the suite's evaluations: ``CURVE_TASKS`` valid tasks spread evenly over
-the split (every k-th, so no block of task ids is favoured), one evaluation seed, the run's own
+Each run is measured on its own valid split (``splits.valid_split`` of its training split: ``valid``
+for ``train``, ``heldout4_valid`` for ``heldout4_train``), which holds no task it trained on and no
+test task; a run on a training split with no valid split has no curve. The curve is cheaper than
+the suite's evaluations: ``CURVE_TASKS`` valid tasks spread evenly over the split (every k-th, so
+no block of task ids is favoured), one evaluation seed, the run's own
 number of corrections (5). A run dir's file is filled in round by round, so a killed command
 resumes where it stopped, and a finished curve is not computed again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -21,8 +25,10 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.app.suite.rundata import CURVE_FILE
+from gpl_dist.config import RunConfig, config_from_dict
 from gpl_dist.errors import RunDirError
-from gpl_dist.splits import split_tasks
+from gpl_dist.splits import split_tasks, valid_split
+from learner.checkpoint import load_checkpoint
 from learner.evaluate import evaluate_policy, load_trained_policy
 
 #: Valid tasks a curve point is measured on (all of a smaller split).
@@ -38,7 +44,7 @@ class CurveSettings:
     """What a curve point measures (recorded in the file; a file of other settings is recomputed).
 
     Attributes:
-        split: the split evaluated.
+        split: the split evaluated: the run's valid split, set by ``for_run``.
         tasks: how many of its tasks, spread evenly.
         seeds: evaluation seeds.
         num_corrections: corrections given (baselines without corrections make one attempt).
@@ -48,6 +54,11 @@ class CurveSettings:
     tasks: int = CURVE_TASKS
     seeds: tuple[int, ...] = CURVE_SEEDS
     num_corrections: int = CURVE_CORRECTIONS
+
+    def for_run(self, cfg: RunConfig) -> CurveSettings | None:
+        """These settings on the valid split of ``cfg``'s training split; None when it has none."""
+        split = valid_split(cfg.env.domain, cfg.env.train_split)
+        return None if split is None else dataclasses.replace(self, split=split)
 
     def to_dict(self) -> dict:
         return {"split": self.split, "tasks": self.tasks, "seeds": list(self.seeds), "num_corrections": self.num_corrections}
@@ -65,13 +76,24 @@ def round_checkpoints(run_dir: Path) -> list[Path]:
     return sorted((run_dir / "checkpoints").glob("round-*.pt"))
 
 
+def run_config(checkpoint: Path) -> RunConfig:
+    """The config a checkpoint was trained under (without building its model)."""
+    return config_from_dict(load_checkpoint(checkpoint).config, f"{checkpoint} (its config)")
+
+
 def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
-    """Fill ``run_dir/curve-valid.json`` with every round's valid completion (resumes a partial
-    file of the same settings); None when the run dir keeps no per-round weights."""
+    """Fill ``run_dir/curve-valid.json`` with every round's completion on the run's valid split
+    (resumes a partial file of the same settings; a file of other settings, another split among
+    them, is measured again); None when the run dir keeps no per-round weights or its training
+    split has no valid split."""
     run_dir = Path(run_dir)
     ckpts = round_checkpoints(run_dir)
     if not ckpts:
         return None
+    resolved = settings.for_run(run_config(ckpts[-1]))
+    if resolved is None:
+        return None
+    settings = resolved
     path = run_dir / CURVE_FILE
     payload: dict[str, Any] = {"settings": settings.to_dict(), "rounds": [], "completion": [], "success": [], "checkpoints": []}
     if path.is_file():

@@ -31,7 +31,6 @@ from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.rundata import (
-    SWAP_FILE,
     InstructionSwap,
     RunBudget,
     RunHealth,
@@ -39,6 +38,7 @@ from gpl_dist.app.suite.rundata import (
     learning_curve,
     run_budget,
     run_health,
+    run_valid_split,
 )
 from gpl_dist.app.suite.runs import RECORD_VERSION
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
@@ -535,9 +535,10 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
             if sw is None:
                 unmeasured.append(seed)
                 continue
-            if sw.split != "valid":
-                raise RunDirError(f"{run_dir / SWAP_FILE} measured the {sw.split} split: the swap control reads valid only")
-            if sw.rule != SWAP_RULE or sw.weights_sha256 != sha256_file(run_dir / "checkpoints" / LATEST):
+            if sw.split != run_valid_split(run_dir):
+                notes.append(f"- `{entry}` seed {seed}: measured on `{sw.split}`, not the run's valid split "
+                             f"(`{run_valid_split(run_dir)}`); left out (measure it again with `gpl-dist suite swap`)")
+            elif sw.rule != SWAP_RULE or sw.weights_sha256 != sha256_file(run_dir / "checkpoints" / LATEST):
                 notes.append(f"- `{entry}` seed {seed}: measured other weights or with another partner rule "
                              f"than `{SWAP_RULE}`; left out (measure it again with `gpl-dist suite swap`)")
             elif not health[run_dir].valid:
@@ -668,11 +669,14 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
     for r in results:
         runs.setdefault(r.entry, set()).add(r.run_dir)
     uncurved: list[str] = []
+    off: list[str] = []
     for entry in sorted(runs):
-        curves = [c for c in (learning_curve(d) for d in sorted(runs[entry]))  # a curve computed to the last round
+        every = [learning_curve(d) for d in sorted(runs[entry])]
+        curves = [c for c in every  # a curve computed to the last round
                   if len(c.valid) >= 2 and c.rounds and c.valid_rounds[-1] == c.rounds[-1]]
         if len(curves) < len(runs[entry]):
             uncurved.append(f"`{entry}` {len(runs[entry]) - len(curves)} of {len(runs[entry])}")
+        off.extend(f"`{entry}` {sorted(runs[entry])[i].name} (`{c.off_split}`)" for i, c in enumerate(every) if c.off_split)
         if not curves:
             continue
         finals = [[v[-1] for v in c.valid] for c in curves]  # each round's completion after the last attempt
@@ -694,6 +698,9 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
         lines.append("\nRuns without a valid curve to their last round, not checked here (`gpl-dist suite curves` "
                      "computes one from a run's per-round weights, which these runs no longer have): "
                      + ", ".join(uncurved) + ".")
+    if off:
+        lines.append("\nOf those, curves measured on a split that is not the run's valid split (it may hold tasks "
+                     "the run trained on, or test tasks), so left out: " + ", ".join(off) + ".")
     return "\n".join(lines)
 
 

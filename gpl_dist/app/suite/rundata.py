@@ -2,7 +2,9 @@
 
 Read from an (archived) run dir: ``metrics.jsonl`` (one row a DAgger round, ``learner.driver.RoundMetrics``),
 ``checkpoints/latest.pt`` (the final weights) and, where the suite computed it, ``curve-valid.json``
-(valid-split completion after each round, ``gpl_dist.app.suite.curves``).
+(completion on the run's valid split after each round, ``gpl_dist.app.suite.curves``). A curve or
+swap file measured on another split than the run's valid split (``run_valid_split``) is not read as
+one: such a split may hold tasks the run trained on, or test tasks.
 
 **Health as a gate.** A run whose conditioning encoder (GPL's, or MIVOA's LSTM) has a layer dead
 whole at its final round acts without that input: a policy blind to its instruction is no
@@ -19,6 +21,7 @@ from pathlib import Path
 
 from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.errors import RunDirError
+from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
 from learner.driver import RoundMetrics
 from learner.health import EncoderHealth
@@ -109,14 +112,18 @@ class LearningCurve:
         rounds: the round indices.
         train: train-task completion during collection, ``train[i][k]`` after k corrections (the
             rollouts of round ``i``, with the weights of round ``i - 1``).
-        valid: valid-split completion of each round's weights, ``valid[i][k]``; () when not computed.
+        valid: completion of each round's weights on the run's valid split, ``valid[i][k]``; ()
+            when not computed, or computed on another split (``off_split``).
         valid_rounds: the rounds of ``valid``.
+        off_split: the split a curve file measured when it is not the run's valid split (its
+            points are then left out of ``valid``); "" otherwise.
     """
 
     rounds: tuple[int, ...]
     train: tuple[tuple[float, ...], ...]
     valid: tuple[tuple[float, ...], ...] = ()
     valid_rounds: tuple[int, ...] = ()
+    off_split: str = ""
 
 
 @dataclass(frozen=True)
@@ -127,7 +134,8 @@ class InstructionSwap:
     Attributes:
         own: completion after 0..K corrections with their own instructions.
         swapped: the same, each task told another task's instruction.
-        split: the split measured (valid).
+        split: the split measured (the run's valid split, ``run_valid_split``, unless measured
+            before it was).
         rule: how partners were chosen (``learner.evaluate.SWAP_RULE``).
         weights_sha256: the SHA-256 of the weights measured (``checkpoints/latest.pt`` then).
     """
@@ -203,18 +211,36 @@ def run_budget(run_dir: Path) -> RunBudget:
                      params, sum(m.train_seconds for m in rounds), sum(m.collection_seconds for m in rounds))
 
 
+def run_valid_split(run_dir: Path) -> str | None:
+    """The split the run is chosen on: the valid split of the training split its ``config.yaml``
+    names (``gpl_dist.splits.valid_split``); None when that has none."""
+    import yaml
+
+    path = run_dir / "config.yaml"
+    try:
+        env = (yaml.safe_load(path.read_text()) or {}).get("env") or {}
+        return valid_split(str(env["domain"]), str(env.get("train_split") or "train"))
+    except (OSError, yaml.YAMLError, KeyError, AttributeError) as err:
+        raise RunDirError(f"{path}: cannot read the run's domain and training split ({type(err).__name__}: {err})") from None
+
+
 def learning_curve(run_dir: Path) -> LearningCurve:
-    """``LearningCurve`` of one run dir (its valid part from ``CURVE_FILE`` when present)."""
+    """``LearningCurve`` of one run dir (its valid part from ``CURVE_FILE`` when present and
+    measured on the run's valid split)."""
     rounds = read_metrics(run_dir)
     valid: tuple[tuple[float, ...], ...] = ()
     valid_rounds: tuple[int, ...] = ()
+    off_split = ""
     path = run_dir / CURVE_FILE
     if path.is_file():
         try:
             payload = json.loads(path.read_text())
             valid_rounds = tuple(int(r) for r in payload["rounds"])
             valid = tuple(tuple(float(x) for x in c) for c in payload["completion"])
+            measured = str(payload["settings"]["split"])
         except (ValueError, KeyError, TypeError) as err:
             raise RunDirError(f"{path}: not a learning curve ({type(err).__name__}: {err})") from None
+        if measured != run_valid_split(run_dir):
+            valid, valid_rounds, off_split = (), (), measured
     return LearningCurve(tuple(m.round_index for m in rounds), tuple(tuple(m.completion_by_corrections) for m in rounds),
-                         valid, valid_rounds)
+                         valid, valid_rounds, off_split)

@@ -15,7 +15,6 @@ from gpl_dist.app.suite.curves import CURVE_TASKS, CurveSettings, compute_curve
 from gpl_dist.app.suite.evidence import CHECKSUMS, check_run
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
 from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
-from gpl_dist.domains import get_domain
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
 from learner.cpu import numerics_fingerprint
@@ -184,11 +183,8 @@ def _evaluate(run: SuiteRun, suite: Suite, names: list[str], log, commit: str, r
 
 def _valid_curve(run: SuiteRun, suite: Suite, log) -> None:
     """The run's valid learning curve (``gpl_dist.app.suite.curves``), while its per-round weights are
-    there: a domain without a valid split has none; an entry whose first evaluation caps its tasks
-    (a quick suite) caps the curve's too."""
-    cfg = run.config(suite)
-    if "valid" not in get_domain(cfg.env.domain).split_names:
-        return
+    there: a training split without a valid split has none; an entry whose first evaluation caps
+    its tasks (a quick suite) caps the curve's too."""
     cap = suite.evaluations[run.entry.evaluations[0]].config.max_tasks
     settings = CurveSettings(tasks=min(CURVE_TASKS, cap) if cap else CURVE_TASKS)
     compute_curve(run.run_dir, settings, log=lambda line: log(f"[{run.entry.name} seed {run.seed}] {line}"))

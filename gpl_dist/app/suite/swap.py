@@ -7,7 +7,7 @@ The direct check is to tell each task another task's instruction
 weights reach with their own instructions, on the same tasks with the same seed: a policy blind to
 its instruction scores the same. Measured with the learning curve's settings
 (``curves.CurveSettings``: ``CURVE_TASKS`` valid tasks spread evenly, one evaluation seed, 5
-corrections) on the run's final weights, and written into the run dir as ``SWAP_FILE``, which the
+corrections, the run's own valid split) on the run's final weights, and written into the run dir as ``SWAP_FILE``, which the
 archive keeps and the report tabulates. Runs whose variant reads no instruction, and runs not
 evaluated yet (still training), are skipped; a file of the same settings, partner rule and weights
 (their SHA-256) is not computed again, and the report leaves out a file whose weights are not the
@@ -32,8 +32,6 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
     """Write ``run_dir/SWAP_FILE``: completion with the tasks' own instructions and with swapped
     ones; None for a run whose variant reads no instruction or that is not evaluated yet (its
     ``suite-run.json`` records no evaluation: it may still be training)."""
-    if settings.split != "valid":
-        raise UsageError(f"the instruction-swap control is a valid-split diagnostic, not run on '{settings.split}'")
     run_dir = Path(run_dir)
     ckpt = run_dir / "checkpoints" / LATEST
     if not ckpt.is_file() or not read_json(run_dir / "suite-run.json").get("evaluations"):
@@ -42,6 +40,11 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
     cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
     if cfg.model.variant not in READS_INSTRUCTION:
         return None
+    resolved = settings.for_run(cfg)
+    if resolved is None:
+        raise UsageError(f"{run_dir} trained on '{cfg.env.train_split}', which has no valid split: "
+                         "the instruction-swap control reads a run's valid split only")
+    settings = resolved
     key = {"settings": settings.to_dict(), "rule": SWAP_RULE, "round": round_index, "weights_sha256": sha256_file(ckpt)}
     if path.is_file():
         try:
