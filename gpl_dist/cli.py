@@ -518,8 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="say instructions and corrections as the oracle does (canonical) or as train/heldout paraphrases")
     p.add_argument("--swap-instructions", action="store_true",
                    help="a control: tell each task another task's instruction (a policy blind to its "
-                        "instruction scores the same as without this); on the valid split unless --split; "
-                        "writes eval-valid-...-swapped-instructions.json")
+                        "instruction scores the same as without this); on the run's valid split (valid, or "
+                        "heldout4_valid for a run trained on heldout4_train) unless --split; "
+                        "writes eval-<split>-...-swapped-instructions.json")
     p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     _add_foreign_checkpoint(p)
     p.add_argument("--out", help="folder for the evaluation's files (default RUN_DIR; required with --foreign-checkpoint)")

@@ -76,17 +76,30 @@ def test_suite_swap_measures_each_instruction_reading_run_once_and_the_report_ta
     from gpl_dist.app.suite.swap import compute_swaps
 
     out = tmp_path / "suite"
-    for entry in ("multiroom-gpl", "multiroom-no-instruction", "multiroom-instruction"):
+    for entry in ("multiroom-gpl", "multiroom-heldout-gpl", "multiroom-no-instruction", "multiroom-instruction"):
         shutil.copytree(ARCHIVE / entry / "seed0", out / entry / "seed0")
     training = out / "multiroom-gpl" / "seed1"  # a run still training: its record names no evaluation yet
     shutil.copytree(ARCHIVE / "multiroom-gpl" / "seed1", training)
     record = json.loads((training / "suite-run.json").read_text())
     (training / "suite-run.json").write_text(json.dumps({**record, "evaluations": {}}))
     settings = CurveSettings(tasks=8, num_corrections=1)
-    with pytest.raises(UsageError, match="valid-split diagnostic"):
-        compute_swaps(out, settings=CurveSettings(split="test"), log=lambda _: None)
-    written = compute_swaps(out, settings=settings, log=lambda _: None)
-    assert written == [out / "multiroom-gpl" / "seed0" / SWAP_FILE, out / "multiroom-instruction" / "seed0" / SWAP_FILE]
+    written = compute_swaps(out, settings=CurveSettings(split="test", tasks=8, num_corrections=1), log=lambda _: None)
+    assert written == [out / "multiroom-gpl" / "seed0" / SWAP_FILE, out / "multiroom-heldout-gpl" / "seed0" / SWAP_FILE,
+                       out / "multiroom-instruction" / "seed0" / SWAP_FILE]
+    # each run on its own valid split, whatever split the settings name: the held-out run's holds
+    # no task it trained on and no test task
+    assert [json.loads(w.read_text())["settings"]["split"] for w in written] == ["valid", "heldout4_valid", "valid"]
+    held = json.loads(written[1].read_text())
+    assert held["num_tasks"] == 8 and not set(split_tasks("multiroom", "heldout4_valid")) & (
+        set(split_tasks("multiroom", "heldout4_train")) | set(split_tasks("multiroom", "heldout4_test"))
+        | set(split_tasks("multiroom", "heldout4_indist_test")))
+    written[1].write_text(json.dumps({**held, "settings": {**held["settings"], "split": "valid"}}))
+    found = collect_results(out, log=lambda _: None)
+    off = swap_markdown(found, health_of(found))  # measured before each run had its own valid split: left out
+    assert "| multiroom-heldout-gpl |" not in off
+    assert "`multiroom-heldout-gpl` seed 0: measured on `valid`, not the run's valid split (`heldout4_valid`)" in off
+    shutil.rmtree(out / "multiroom-heldout-gpl")
+    written = [written[0], written[2]]
     one = json.loads(written[1].read_text())
     assert len(one["own"]["completion"]) == 1  # one attempt: the instruction alone
     record = json.loads(written[0].read_text())

@@ -328,7 +328,7 @@ def test_splits_file_matches_generator():
         (get_task(t).obj_colour, get_task(t).obj_shape) in held for t in splits["heldout_test"])
     assert len(splits["heldout_test"]) == 180 * len(HELDOUT_OBJECTS)
     # version 2: the harder Table 5 adds splits and keeps every earlier one as it was
-    assert stored["version"] == 2 and len(HELDOUT4_OBJECTS) == 4 and set(HELDOUT_OBJECTS) <= set(HELDOUT4_OBJECTS)
+    assert len(HELDOUT4_OBJECTS) == 4 and set(HELDOUT_OBJECTS) <= set(HELDOUT4_OBJECTS)
     held4 = set(HELDOUT4_OBJECTS)
     seen = set(splits["heldout4_train"]) | set(splits["heldout4_indist_test"])
     assert len(splits["heldout4_indist_test"]) == 250 and not set(splits["heldout4_train"]) & set(splits["heldout4_indist_test"])
@@ -337,6 +337,12 @@ def test_splits_file_matches_generator():
     assert splits["heldout4_test"] == [t for t in range(NUM_TASKS) if (get_task(t).obj_colour, get_task(t).obj_shape) in held4]
     colour, shape = decoy_overlap(splits["heldout4_test"])
     assert 0 < colour < 1 and 0 < shape < 1
+    # version 3: the held-out runs' valid split, every task of no heldout4 split (none trained on, none tested)
+    assert stored["version"] == 3
+    assert set(splits["heldout4_valid"]) == set(range(NUM_TASKS)) - seen - set(splits["heldout4_test"])
+    assert all((get_task(t).obj_colour, get_task(t).obj_shape) not in held4
+               and any((o.colour, o.shape) in held4 for o in get_task(t).objects) for t in splits["heldout4_valid"])
+    assert DOMAIN.valid_splits == {"train": "valid", "heldout4_train": "heldout4_valid"}
     # the paper's condition: no test task's subgoal list appears in training
     train_lists = {MultiRoomEnv(t).subgoal_texts for t in splits["train"]}
     assert not any(MultiRoomEnv(t).subgoal_texts in train_lists for t in splits["test"])

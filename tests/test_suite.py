@@ -380,6 +380,45 @@ def test_model_selection_reads_the_valid_split_only():
         assert cfg.eval.split == "valid" and "test" not in cfg.env.train_split, run.entry.name
 
 
+def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(tmp_path):
+    """The learning curve and the swap control of each entry of the paper suite read its own valid
+    split: no task of its training split, none of any test split. A curve measured on another split
+    (the held-out runs' curves read the main valid split before split file version 3, which holds
+    tasks of their test splits) is left out."""
+    import shutil
+
+    from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
+    from gpl_dist.app.suite.report import plateau_markdown
+    from gpl_dist.app.suite.rundata import CURVE_FILE, learning_curve
+    from gpl_dist.splits import split_tasks
+
+    suite = load_suite(REPO / "configs" / "suites" / "paper.yaml")
+    chosen = set()
+    for run in plan(suite, "unused"):
+        cfg = run.config(suite)
+        settings = CurveSettings().for_run(cfg)
+        if settings is None:
+            continue
+        chosen.add((cfg.env.domain, cfg.env.train_split, settings.split))
+        tasks = set(split_tasks(cfg.env.domain, settings.split))
+        tested = {t for name in run.entry.evaluations for t in split_tasks(cfg.env.domain, suite.evaluations[name].config.split)}
+        assert tested and all("test" in suite.evaluations[name].config.split for name in run.entry.evaluations)
+        assert not tasks & set(split_tasks(cfg.env.domain, cfg.env.train_split)), run.entry.name
+        assert not tasks & tested, run.entry.name
+        assert set(curve_tasks(cfg.env.domain, settings)) <= tasks
+    assert ("multiroom", "heldout4_train", "heldout4_valid") in chosen and ("relocation", "train", "valid") in chosen
+    run = tmp_path / "multiroom-heldout-gpl" / "seed0"
+    shutil.copytree(REPO / "docs" / "paper-report" / "runs" / "multiroom-heldout-gpl" / "seed0", run)
+    curve = json.loads((run / CURVE_FILE).read_text())
+    curve["settings"]["split"] = "heldout4_valid"
+    (run / CURVE_FILE).write_text(json.dumps(curve))
+    assert learning_curve(run).valid and not learning_curve(run).off_split
+    (run / CURVE_FILE).write_text(json.dumps({**curve, "settings": {**curve["settings"], "split": "valid"}}))
+    assert learning_curve(run).valid == () and learning_curve(run).off_split == "valid"
+    table = plateau_markdown(collect_results(tmp_path, log=lambda _: None), {})
+    assert "| multiroom-heldout-gpl |" not in table and "left out: `multiroom-heldout-gpl` seed0 (`valid`)" in table
+
+
 def test_a_run_left_out_as_not_valid_is_not_listed_as_not_run(tmp_path):
     """The archived all-corrections seed 0 failed the health gate: the report leaves it out of the
     means and says so in its row, but it was run, so 'Not run yet' names only seeds never run."""
