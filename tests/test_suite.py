@@ -457,15 +457,19 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
             run_dir = tmp_path / entry / f"seed{seed}"
             run_dir.mkdir(parents=True)
             shutil.copy(metrics, run_dir / "metrics.jsonl")
+            shutil.copy(metrics.with_name("config.yaml"), run_dir / "config.yaml")
             values = [[0.5]] * (rounds - 1) + [[0.5 + gain]]
             if entry == "peaked":  # best at round 1 (0.8 + 0.02 * seed), flat at 0.6 over its last round
                 values = [[0.5], [0.8 + 0.02 * seed]] + [[0.6]] * (rounds - 2)
-            (run_dir / CURVE_FILE).write_text(json.dumps({"rounds": list(range(rounds)), "completion": values}))
+            (run_dir / CURVE_FILE).write_text(json.dumps({"settings": {"split": "valid"}, "rounds": list(range(rounds)),
+                                                          "completion": values}))
             results.append(RunResult(entry, seed, run_dir, "test", (0.5,), run_dir / "eval.json", (), (), 0.0, 0.0))
     short = tmp_path / "short" / "seed0"  # a curve stopped before the last round
     short.mkdir(parents=True)
     shutil.copy(metrics, short / "metrics.jsonl")
-    (short / CURVE_FILE).write_text(json.dumps({"rounds": [0, 1], "completion": [[0.1], [0.9]]}))
+    shutil.copy(metrics.with_name("config.yaml"), short / "config.yaml")
+    (short / CURVE_FILE).write_text(json.dumps({"settings": {"split": "valid"}, "rounds": [0, 1],
+                                                "completion": [[0.1], [0.9]]}))
     results.append(RunResult("short", 0, short, "test", (0.5,), short / "eval.json", (), (), 0.0, 0.0))
     table = {line.split(" | ")[0].strip("| "): line for line in plateau_markdown(results, {"rising-long": (0,)}).splitlines()}
     assert "still rising" in table["rising"] and "`rising-long` (not run yet)" in table["rising"]

@@ -123,3 +123,11 @@ def test_comparisons_test_every_row_against_its_tables_gpl(tmp_path):
     instr = next(v for k, v in short.items() if "Instruction c0" in k and "multiroom" in k)
     assert "GPL above other (provisional: multiroom-instruction 3 of 5 seeds)" in instr
     assert all("provisional" not in v for k, v in short.items() if "retry" in k)
+    # equal budgets: a 12-round ablation is set against GPL trained 12 rounds too, and against GPL's 6
+    long = [RunResult(entry, s, d, "test", (0.02, 0.5, 0.8, 0.9, 0.92, c + 0.01 * s), d, (), (), 1, 1)
+            for entry, c in (("multiroom-gpl-long", 0.95), ("multiroom-latest-correction-long", 0.80)) for s in range(3)]
+    both = {line.split("|")[1].strip(): line for line in comparisons_markdown(results + long).splitlines()[2:]}
+    assert "GPL above other" in both["Table 2: GPL 12 rounds c5 vs Only immediate correction, 12 rounds c5"]
+    assert "GPL above other" in both["Table 2: GPL c5 vs Only immediate correction, 12 rounds c5"]
+    assert "Table 1, multiroom: GPL c5 vs GPL, 12 rounds c5" in both
+    assert not any(k.startswith("Table 2: GPL 12 rounds c5 vs Base") for k in both)

@@ -99,6 +99,7 @@ PAPER_TABLES = (
         PaperRow("MIVOA (Full Info)", "multiroom-mivoa-full-info", "test", (0,), (0.63,)),
         PaperRow("MIVOA (Full Info), 12 rounds", "multiroom-mivoa-full-info-long", "test", (0,), (0.63,)),
         PaperRow("GPL", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
+        PaperRow("GPL, 12 rounds", "multiroom-gpl-long", "test", _C05, _gpl("multiroom")),
     )),
     PaperTable("table1-relocation", "Table 1, object relocation: mean completion on the test tasks (1 - final / "
                "initial block distance)", _C05, (
@@ -110,6 +111,7 @@ PAPER_TABLES = (
     )),
     PaperTable("table2", "Table 2, multi-room ablations", _C05, (
         PaperRow("Base (GPL)", "multiroom-gpl", "test", _C05, _gpl("multiroom")),
+        PaperRow("Base (GPL), 12 rounds", "multiroom-gpl-long", "test", _C05, _gpl("multiroom")),
         PaperRow("No instruction", "multiroom-no-instruction", "test", _C05, (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
         PaperRow("No instruction, 12 rounds", "multiroom-no-instruction-long", "test", _C05,
                  (0.059, 0.45, 0.62, 0.72, 0.78, 0.79)),
@@ -594,22 +596,30 @@ class Comparison:
 def _comparisons() -> tuple[Comparison, ...]:
     """Each row of the paper's tables against its table's GPL row of the same domain and
     evaluation (GPL after the table's last column against the row's last column), and the retry
-    control's gain over attempts against GPL's."""
+    control's gain over attempts against GPL's. A row trained 12 rounds (``-long``) is also set
+    against the table's GPL trained 12 rounds (``-gpl-long``), where there is one: equal budgets."""
     out: dict[tuple, Comparison] = {}
+
+    def reference(table: PaperTable, row: PaperRow, suffix: str) -> PaperRow | None:
+        domain = (row.entry or "").split("-")[0] + "-"
+        return next((g for g in table.rows if g.entry and g.entry.endswith(suffix) and g.entry.startswith(domain)
+                     and g.evaluation == row.evaluation), None)
+
     for table in PAPER_TABLES:
         for row in table.rows:
             if row.entry is None or row.entry.endswith("-gpl"):
                 continue
-            domain = row.entry.split("-")[0] + "-"
-            gpl = next((g for g in table.rows if g.entry and g.entry.endswith("-gpl") and g.entry.startswith(domain)
-                        and g.evaluation == row.evaluation), None)
-            if gpl is None or gpl.entry is None:
-                continue
-            for gain in (False, True) if table.key == "retry" else (False,):
-                c = Comparison(f"{_heading(table)}: GPL c{gpl.columns[-1]} vs {row.label} c{row.columns[-1]}"
-                               + (", gain over c0" if gain else ""), gpl.entry, gpl.evaluation, gpl.columns[-1],
-                               row.entry, row.evaluation, row.columns[-1], gain)
-                out.setdefault((c.entry, c.evaluation, c.k, c.other, c.other_evaluation, c.other_k, gain), c)
+            pairs = [("GPL", reference(table, row, "-gpl"))]
+            if row.entry.endswith("-long") and not row.entry.endswith("-gpl-long"):
+                pairs.append(("GPL 12 rounds", reference(table, row, "-gpl-long")))
+            for name, gpl in pairs:
+                if gpl is None or gpl.entry is None:
+                    continue
+                for gain in (False, True) if table.key == "retry" else (False,):
+                    c = Comparison(f"{_heading(table)}: {name} c{gpl.columns[-1]} vs {row.label} c{row.columns[-1]}"
+                                   + (", gain over c0" if gain else ""), gpl.entry, gpl.evaluation, gpl.columns[-1],
+                                   row.entry, row.evaluation, row.columns[-1], gain)
+                    out.setdefault((c.entry, c.evaluation, c.k, c.other, c.other_evaluation, c.other_k, gain), c)
     return tuple(out.values())
 
 
