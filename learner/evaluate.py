@@ -329,7 +329,8 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     JSON's path. A checkpoint of another run, domain or model is refused unless
     ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir).
     ``swap_instructions`` tells each task another task's instruction (``swapped_instructions``), on
-    the valid split unless ``split`` says otherwise (a diagnostic: choose on valid)."""
+    the run's valid split (``splits.valid_split`` of its training split) unless ``split`` says
+    otherwise (a diagnostic: choose on valid)."""
     run_dir = Path(run_dir)
     target = Path(out_dir) if out_dir is not None else run_dir
     if foreign_checkpoint:

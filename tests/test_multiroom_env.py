@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import pickle
 import warnings
@@ -337,6 +338,12 @@ def test_splits_file_matches_generator():
     assert splits["heldout4_test"] == [t for t in range(NUM_TASKS) if (get_task(t).obj_colour, get_task(t).obj_shape) in held4]
     colour, shape = decoy_overlap(splits["heldout4_test"])
     assert 0 < colour < 1 and 0 < shape < 1
+    # each earlier split exactly as version 2 stored it (sha256 of its JSON list)
+    pinned = {"train": "8e5e2ed2b4ddaa09", "test": "90ac2bcfbf10e39b", "valid": "29ab99421ddfe65a",
+              "heldout_train": "e36698da8a1beefd", "heldout_test": "fd0a34b61378f6fd",
+              "heldout4_train": "7f903db6e55837a4", "heldout4_indist_test": "187ea3f9d65433be",
+              "heldout4_test": "6df2c412ceaee0d9"}
+    assert {k: hashlib.sha256(json.dumps(stored["splits"][k]).encode()).hexdigest()[:16] for k in pinned} == pinned
     # version 3: the held-out runs' valid split, every task of no heldout4 split (none trained on, none tested)
     assert stored["version"] == 3
     assert set(splits["heldout4_valid"]) == set(range(NUM_TASKS)) - seen - set(splits["heldout4_test"])

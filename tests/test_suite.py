@@ -372,12 +372,14 @@ def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive
 def test_model_selection_reads_the_valid_split_only():
     """The recipe suite (every design choice) evaluates on the valid split, never on a test split."""
     from gpl_dist.app.suite.spec import plan
+    from gpl_dist.splits import valid_split
 
     recipe = load_suite(Path(__file__).resolve().parents[1] / "configs" / "suites" / "recipe.yaml")
     assert recipe.evaluations and {ev.config.split for ev in recipe.evaluations.values()} == {"valid"}
     for run in plan(recipe, "unused"):
         cfg = run.config(recipe)
-        assert cfg.eval.split == "valid" and "test" not in cfg.env.train_split, run.entry.name
+        assert cfg.eval.split == valid_split(cfg.env.domain, cfg.env.train_split), run.entry.name
+        assert "test" not in cfg.env.train_split, run.entry.name
 
 
 def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(tmp_path):
@@ -417,6 +419,18 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     assert learning_curve(run).valid == () and learning_curve(run).off_split == "valid"
     table = plateau_markdown(collect_results(tmp_path, log=lambda _: None), {})
     assert "| multiroom-heldout-gpl |" not in table and "left out: `multiroom-heldout-gpl` seed0 (`valid`)" in table
+    # a training split without a valid split has no curve; a user's domain is registered from its module first
+    from gpl_dist.config import load_config
+
+    cfg = load_config(REPO / "configs" / "multiroom.yaml", {"env.train_split": "heldout_train"})
+    assert CurveSettings().for_run(cfg) is None
+    corridor = tmp_path / "corridor" / "seed0"
+    corridor.mkdir(parents=True)
+    shutil.copy(run / "metrics.jsonl", corridor / "metrics.jsonl")
+    module = REPO / "tests" / "domains" / "corridor.py"
+    (corridor / "config.yaml").write_text(f"env: {{domain: corridor, domain_module: {module}}}\n")
+    (corridor / CURVE_FILE).write_text(json.dumps({**curve, "settings": {"split": "valid"}}))
+    assert learning_curve(corridor).off_split == "valid"  # corridor declares no valid split
 
 
 def test_a_run_left_out_as_not_valid_is_not_listed_as_not_run(tmp_path):

@@ -44,7 +44,8 @@ class CurveSettings:
     """What a curve point measures (recorded in the file; a file of other settings is recomputed).
 
     Attributes:
-        split: the split evaluated: the run's valid split, set by ``for_run``.
+        split: the split evaluated: the run's valid split, which ``for_run`` sets (``compute_curve``
+            and ``swap.compute_swap`` call it, so a caller's value is replaced).
         tasks: how many of its tasks, spread evenly.
         seeds: evaluation seeds.
         num_corrections: corrections given (baselines without corrections make one attempt).

@@ -6,7 +6,7 @@ which names the file of each evaluation); none is typed here except the paper's 
 over **training** seeds of the run's mean completion over its evaluation seeds, ± the half-width
 of its 95 % t interval over training seeds (the last column says which seeds; one seed has no ±).
 The instruction-swap section reads each run's ``instruction-swap-valid.json`` instead
-(``gpl_dist.app.suite.swap``, valid split). Rows of
+(``gpl_dist.app.suite.swap``, each run's valid split). Rows of
 methods not built, or entries not run yet, are kept with the paper's number and a dash, so the
 report always shows every row of the paper.
 
@@ -514,11 +514,12 @@ READ_DROP = 0.1
 
 
 def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> str:
-    """The instruction-swap control (``gpl_dist.app.suite.swap``, valid split) per entry, over its
+    """The instruction-swap control (``gpl_dist.app.suite.swap``, each run's valid split) per entry, over its
     valid runs: completion with the tasks' own instructions and told another task's, after the
     first and the last attempt, each with the paired difference (swapped minus own) over training
     seeds, its 95 % t interval and two-sided p. Below the table, one a line: runs that are not
-    valid, runs measured on other weights or with another partner rule (left out), valid runs not
+    valid, runs measured on other weights, with another partner rule or on another split than the
+    run's valid split (left out), valid runs not
     measured yet, and the valid runs that drop less than ``FLOOR_CHANGE`` told another task's
     instruction after the last attempt where some of the entry's runs drop by ``READ_DROP`` or more
     (those runs do not read their instruction; the entry's mean drop can hide them)."""
@@ -537,9 +538,11 @@ def swap_markdown(results: list[RunResult], health: dict[Path, RunHealth]) -> st
             if sw is None:
                 unmeasured.append(seed)
                 continue
-            if sw.split != run_valid_split(run_dir):
-                notes.append(f"- `{entry}` seed {seed}: measured on `{sw.split}`, not the run's valid split "
-                             f"(`{run_valid_split(run_dir)}`); left out (measure it again with `gpl-dist suite swap`)")
+            own_split = run_valid_split(run_dir)
+            if sw.split != own_split:
+                notes.append(f"- `{entry}` seed {seed}: measured on `{sw.split}`, "
+                             + (f"not the run's valid split (`{own_split}`); left out (measure it again with "
+                                "`gpl-dist suite swap`)" if own_split else "but its training split has no valid split; left out"))
             elif sw.rule != SWAP_RULE or sw.weights_sha256 != sha256_file(run_dir / "checkpoints" / LATEST):
                 notes.append(f"- `{entry}` seed {seed}: measured other weights or with another partner rule "
                              f"than `{SWAP_RULE}`; left out (measure it again with `gpl-dist suite swap`)")
@@ -876,12 +879,14 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
     wanted = wanted_runs(planned, excluded)
-    sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), over the valid "
+    sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), and every "
+                 "12-round row against GPL trained 12 rounds where the table has it, over the valid "
                  "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results, wanted)),
                 ("Budgets", "What each entry's runs spent (mean over its valid runs): the no-correction baselines "
                  "collect one attempt a task, so fewer tuples and gradient steps than GPL.", budgets_markdown(results, out)),
-                ("Still improving at the last round?", "Valid-split completion (after the last attempt) gained over "
-                 "each run's last DAgger round, from the learning curves above, paired by training seed: an entry "
+                ("Still improving at the last round?", "Completion on each run's valid split (after the last "
+                 "attempt) gained over each run's last DAgger round, from the learning curves above, paired by "
+                 "training seed: an entry "
                  "still rising is trained on under `<entry>-long` until its curve is flat, and both are reported. "
                  "Each run's best round on its valid curve stands beside, so that a curve which peaked and fell "
                  "shows (descriptive: a maximum over rounds flatters; the reported weights are the last round's).",
@@ -890,7 +895,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
                  "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
                  "every mean above.", health_markdown(health, out)),
-                ("Does each policy read its instruction?", "The instruction-swap control on the valid split "
+                ("Does each policy read its instruction?", "The instruction-swap control on each run's valid split "
                  "(`gpl-dist suite swap`, its settings in each run's `instruction-swap-valid.json`): each run's final "
                  "weights with the tasks' own instructions and with each task told the most different instruction of "
                  "another task; a policy blind to its instruction scores the same. Means over the entry's valid runs; "
@@ -945,7 +950,7 @@ _INTRO = ("Written by `gpl-dist suite report {suite_out}` from the runs' `eval*.
           "completion over training seeds (each seed's own value is its mean over the evaluation seeds, see Evaluation "
           "settings), ± the half-width of its 95 % t interval over training seeds, and the paper's number in "
           "parentheses. '—': not run yet or not built; the last column says which. The instruction-swap control "
-          "reads each run's `instruction-swap-valid.json` (valid split), archived beside its eval files.")
+          "reads each run's `instruction-swap-valid.json` (the run's valid split), archived beside its eval files.")
 _INTRO_HTML = _INTRO.replace("`", "")
 
 

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gpl_dist.corrections import CONSTANT_KINDS
-from gpl_dist.errors import RunDirError
+from gpl_dist.domains import get_domain, load_domain_module
+from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
 from learner.driver import RoundMetrics
@@ -219,8 +220,11 @@ def run_valid_split(run_dir: Path) -> str | None:
     path = run_dir / "config.yaml"
     try:
         env = (yaml.safe_load(path.read_text()) or {}).get("env") or {}
-        return valid_split(str(env["domain"]), str(env.get("train_split") or "train"))
-    except (OSError, yaml.YAMLError, KeyError, AttributeError) as err:
+        if env.get("domain_module"):  # a domain of the user's own module: register it first
+            load_domain_module(str(env["domain_module"]))
+        domain = get_domain(str(env["domain"]))
+        return valid_split(domain.name, str(env.get("train_split") or domain.train_split))
+    except (OSError, yaml.YAMLError, KeyError, AttributeError, UserError) as err:
         raise RunDirError(f"{path}: cannot read the run's domain and training split ({type(err).__name__}: {err})") from None
 
 
@@ -237,7 +241,7 @@ def learning_curve(run_dir: Path) -> LearningCurve:
             payload = json.loads(path.read_text())
             valid_rounds = tuple(int(r) for r in payload["rounds"])
             valid = tuple(tuple(float(x) for x in c) for c in payload["completion"])
-            measured = str(payload["settings"]["split"])
+            measured = str((payload.get("settings") or {}).get("split", "?"))  # "?": a file from before settings
         except (ValueError, KeyError, TypeError) as err:
             raise RunDirError(f"{path}: not a learning curve ({type(err).__name__}: {err})") from None
         if measured != run_valid_split(run_dir):

@@ -22,7 +22,7 @@ from pathlib import Path
 from gpl_dist.app.suite.curves import CurveSettings, curve_tasks, suite_run_dirs
 from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rundata import SWAP_FILE
-from gpl_dist.errors import RunDirError, UsageError
+from gpl_dist.errors import RunDirError
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST
 from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy, write_atomic
@@ -30,8 +30,9 @@ from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy, wr
 
 def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
     """Write ``run_dir/SWAP_FILE``: completion with the tasks' own instructions and with swapped
-    ones; None for a run whose variant reads no instruction or that is not evaluated yet (its
-    ``suite-run.json`` records no evaluation: it may still be training)."""
+    ones, on the run's valid split (``settings.split`` is replaced by it); None for a run whose
+    variant reads no instruction, whose training split has no valid split, or that is not
+    evaluated yet (its ``suite-run.json`` records no evaluation: it may still be training)."""
     run_dir = Path(run_dir)
     ckpt = run_dir / "checkpoints" / LATEST
     if not ckpt.is_file() or not read_json(run_dir / "suite-run.json").get("evaluations"):
@@ -41,9 +42,9 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
     if cfg.model.variant not in READS_INSTRUCTION:
         return None
     resolved = settings.for_run(cfg)
-    if resolved is None:
-        raise UsageError(f"{run_dir} trained on '{cfg.env.train_split}', which has no valid split: "
-                         "the instruction-swap control reads a run's valid split only")
+    if resolved is None:  # as its curve: the control reads a run's valid split only
+        log(f"{run_dir}: trained on '{cfg.env.train_split}', which has no valid split: no instruction-swap control")
+        return None
     settings = resolved
     key = {"settings": settings.to_dict(), "rule": SWAP_RULE, "round": round_index, "weights_sha256": sha256_file(ckpt)}
     if path.is_file():
