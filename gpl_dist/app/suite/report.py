@@ -684,12 +684,13 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
     uncurved: list[str] = []
     off: list[str] = []
     for entry in sorted(runs):
-        every = [learning_curve(d) for d in sorted(runs[entry])]
+        dirs = sorted(runs[entry])
+        every = [learning_curve(d) for d in dirs]
         curves = [c for c in every  # a curve computed to the last round
                   if len(c.valid) >= 2 and c.rounds and c.valid_rounds[-1] == c.rounds[-1]]
-        if len(curves) < len(runs[entry]):
-            uncurved.append(f"`{entry}` {len(runs[entry]) - len(curves)} of {len(runs[entry])}")
-        off.extend(f"`{entry}` {sorted(runs[entry])[i].name} (`{c.off_split}`)" for i, c in enumerate(every) if c.off_split)
+        if len(curves) < len(dirs):
+            uncurved.append(f"`{entry}` {len(dirs) - len(curves)} of {len(dirs)}")
+        off.extend(f"`{entry}` {d.name} (`{c.off_split}`)" for d, c in zip(dirs, every) if c.off_split)
         if not curves:
             continue
         finals = [[v[-1] for v in c.valid] for c in curves]  # each round's completion after the last attempt

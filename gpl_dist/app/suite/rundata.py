@@ -19,8 +19,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from gpl_dist.config import load_config
 from gpl_dist.corrections import CONSTANT_KINDS
-from gpl_dist.domains import get_domain, load_domain_module
 from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
@@ -214,18 +214,14 @@ def run_budget(run_dir: Path) -> RunBudget:
 
 def run_valid_split(run_dir: Path) -> str | None:
     """The split the run is chosen on: the valid split of the training split its ``config.yaml``
-    names (``gpl_dist.splits.valid_split``); None when that has none."""
-    import yaml
-
+    names (``gpl_dist.splits.valid_split``); None when that has none. ``load_config`` registers a
+    domain of the user's own module and fills in the domain's default training split."""
     path = run_dir / "config.yaml"
     try:
-        env = (yaml.safe_load(path.read_text()) or {}).get("env") or {}
-        if env.get("domain_module"):  # a domain of the user's own module: register it first
-            load_domain_module(str(env["domain_module"]))
-        domain = get_domain(str(env["domain"]))
-        return valid_split(domain.name, str(env.get("train_split") or domain.train_split))
-    except (OSError, yaml.YAMLError, KeyError, AttributeError, UserError) as err:
+        cfg = load_config(path)
+    except (OSError, UserError) as err:
         raise RunDirError(f"{path}: cannot read the run's domain and training split ({type(err).__name__}: {err})") from None
+    return valid_split(cfg.env.domain, cfg.env.train_split)
 
 
 def learning_curve(run_dir: Path) -> LearningCurve:
