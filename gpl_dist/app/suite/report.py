@@ -32,6 +32,7 @@ from gpl_dist.app.suite.rl_jobs import plan_of_copy
 from gpl_dist.app.suite.rl_report import sample_complexity_section
 from gpl_dist.app.suite.rundata import (
     InstructionSwap,
+    LearningCurve,
     RunBudget,
     RunHealth,
     instruction_swap,
@@ -665,7 +666,13 @@ def _fmt(value: float | None, spec: str) -> str:
     return "—" if value is None else format(value, spec)
 
 
-def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...]]) -> str:
+def run_curves(results: list[RunResult]) -> dict[Path, LearningCurve]:
+    """Each run's ``LearningCurve``, read once for every table and plot of a report."""
+    return {d: learning_curve(d) for d in sorted({r.run_dir for r in results})}
+
+
+def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...]],
+                     by_run: Mapping[Path, LearningCurve] | None = None) -> str:
     """Whether each entry was still improving at its last round, on the valid split: per run, the
     valid completion after the last attempt at its last round minus that at the round before
     (``curve-valid.json``, ``gpl-dist suite curves``); over the entry's valid runs, the mean gain
@@ -678,6 +685,7 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
     lines = ["| entry | runs with a curve | last round | valid completion there | gain over the last round "
              "(95 % t), p | verdict | best round per run: valid there (mean) | trained longer |",
              "|---|---|---|---|---|---|---|---|"]
+    by_run = run_curves(results) if by_run is None else by_run
     runs: dict[str, set[Path]] = {}
     for r in results:
         runs.setdefault(r.entry, set()).add(r.run_dir)
@@ -685,7 +693,7 @@ def plateau_markdown(results: list[RunResult], planned: dict[str, tuple[int, ...
     off: list[str] = []
     for entry in sorted(runs):
         dirs = sorted(runs[entry])
-        every = [learning_curve(d) for d in dirs]
+        every = [by_run[d] for d in dirs]
         curves = [c for c in every  # a curve computed to the last round
                   if len(c.valid) >= 2 and c.rounds and c.valid_rounds[-1] == c.rounds[-1]]
         if len(curves) < len(dirs):
@@ -740,21 +748,23 @@ def budgets_markdown(results: list[RunResult], report_dir: Path) -> str:
     return "\n".join(lines)
 
 
-def plot_curves(results: list[RunResult], domain: str, path: Path) -> bool:
+def plot_curves(results: list[RunResult], domain: str, path: Path,
+                by_run: Mapping[Path, LearningCurve] | None = None) -> bool:
     """Completion over DAgger rounds of each ``domain`` entry, mean over its runs: on the training
     tasks during collection (after the last correction), and on the valid split where computed."""
     entries = sorted({r.entry for r in results if r.entry.startswith(domain + "-")})
     if not entries:
         return False
+    by_run = run_curves(results) if by_run is None else by_run
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9.5, 3.6), dpi=110, sharey=True)
     for i, entry in enumerate(entries):
-        curves = [learning_curve(d) for d in sorted({r.run_dir for r in results if r.entry == entry})]
+        runs = [by_run[d] for d in sorted({r.run_dir for r in results if r.entry == entry})]
         for ax, part in zip(axes, ("train", "valid")):
-            series = [(c.rounds if part == "train" else c.valid_rounds, getattr(c, part)) for c in curves]
+            series = [(c.rounds if part == "train" else c.valid_rounds, getattr(c, part)) for c in runs]
             series = [(rs, v) for rs, v in series if v]
             if not series:
                 continue
@@ -880,6 +890,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             data = base64.b64encode(png.read_bytes()).decode()
             html_parts.append(f'<img alt="{table.key}" src="data:image/png;base64,{data}">')
     wanted = wanted_runs(planned, excluded)
+    curves = run_curves(results)
     sections = [("Comparisons", "Every row against its table's GPL row (same domain and evaluation), and every "
                  "12-round row against GPL trained 12 rounds where the table has it, over the valid "
                  "runs' training seeds: Welch's two-sided t-test; 'tie' when p >= 0.05.", comparisons_markdown(results, wanted)),
@@ -891,7 +902,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
                  "still rising is trained on under `<entry>-long` until its curve is flat, and both are reported. "
                  "Each run's best round on its valid curve stands beside, so that a curve which peaked and fell "
                  "shows (descriptive: a maximum over rounds flatters; the reported weights are the last round's).",
-                 plateau_markdown(results, planned)),
+                 plateau_markdown(results, planned, curves)),
                 ("Run health", "Each run's conditioning encoders at its final round (dead / units: i instruction, "
                  "c correction, t trajectory, p pair; MIVOA's LSTM: constant units) and the rounds where a layer of "
                  "them was dead whole. A run with a layer dead at its final round is not valid and is left out of "
@@ -913,7 +924,7 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
             html_parts.append("<h2>Learning curves</h2>")
             for domain in sorted({r.entry.split("-")[0] for r in results}):
                 png = out / f"curves-{domain}.png"
-                if plot_curves(results, domain, png):
+                if plot_curves(results, domain, png, curves):
                     parts.append(f"![learning curves, {domain}]({png.name})")
                     data = base64.b64encode(png.read_bytes()).decode()
                     html_parts.append(f'<img alt="learning curves, {domain}" src="data:image/png;base64,{data}">')
