@@ -36,41 +36,23 @@ def parse_overrides(pairs: list[str]) -> dict[str, str]:
     return out
 
 
-def _buffer_root(path: str) -> str:
-    """A run dir's buffer root (its config may point elsewhere), or ``path`` itself when it is a
-    buffer; ``RunDirError`` when ``path`` holds neither."""
-    from gpl_dist.errors import RunDirError
-    from storage.manifest import is_buffer
-
-    p = Path(path)
-    if (p / "config.yaml").is_file():
-        from gpl_dist.config import load_config
-        location = load_config(p / "config.yaml").buffer.location
-        return location or str(p / "buffer")
-    if "://" not in path and not p.exists():
-        raise RunDirError(f"no run directory or buffer at {path}")
-    for candidate in ([path] if "://" in path else [str(p / "buffer"), path]):
-        if is_buffer(candidate):
-            return candidate
-    raise RunDirError(f"{path} holds no gpl-dist run or buffer (no config.yaml, manifests/ or _gpl-dist-buffer.json)")
-
-
 def cmd_train(args: argparse.Namespace) -> int:
     """``gpl-dist train``: meta-train a run (Algorithm 1), fresh or ``--resume``."""
     from gpl_dist.config import load_config
-    from learner.driver import run_training
+    from learner.driver import resume_config, run_training
 
     overrides = parse_overrides(args.set)
     if args.num_workers is not None:
         overrides["collection.num_workers"] = str(args.num_workers)
-    config_path = args.config
-    if config_path is None:
-        if not args.resume:
-            raise UsageError("--config is required (unless --resume, which reuses RUN_DIR/config.yaml)")
-        config_path = Path(args.run_dir) / "config.yaml"
-    cfg = load_config(config_path, overrides)
+    if args.seeds is not None:
+        return _train_seeds(args, overrides)
+    if args.config is None and not args.resume:
+        raise UsageError("--config is required (unless --resume, which goes on with the run's latest checkpoint's config)")
+    # the user's own --config is imported as asked; a run's config only as gpl_dist.domains.domain_module_allowed says
+    cfg = (load_config(args.config, overrides, plugins="own") if args.config
+           else resume_config(args.run_dir, overrides))
     result = run_training(cfg, args.run_dir, serial=args.serial, address=args.address, resume=args.resume,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress and sys.stderr.isatty())  # no bars in piped logs
     if result.history:
         last = result.history[-1]
         print("\nfinal round, training tasks: cK is the mean completion (fraction of the task done) after K "
@@ -78,6 +60,67 @@ def cmd_train(args: argparse.Namespace) -> int:
         for k, v in enumerate(last.completion_by_corrections):
             print(f"  c{k}: {v:.3f}")
         print(f"run saved to {result.run_dir}; evaluate with: gpl-dist eval --run-dir {result.run_dir}")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    """``gpl-dist config``: every config key with its default and its one-line doc."""
+    from gpl_dist.config import describe_keys
+    from gpl_dist.domains import load_domain_module
+
+    if args.domain_module:  # named on the command line: imported as asked
+        load_domain_module(args.domain_module)
+    keys = describe_keys(args.section, args.domain)
+    width = max(len(k.key) for k in keys)
+    for k in keys:
+        default = "null (the domain's)" if k.default is None else (list(k.default) if isinstance(k.default, tuple)
+                                                                    else k.default)
+        print(f"{k.key:<{width}}  {k.type}, default {default!r}\n{'':<{width}}  {k.doc}")
+    print(f"\n{len(keys)} key(s); set them in a YAML config (section: {{key: value}}) or with --set section.key=value")
+    return 0
+
+
+def cmd_check_domain(args: argparse.Namespace) -> int:
+    """``gpl-dist check-domain``: the env contract on a domain, each check in a line."""
+    from gpl_dist.app.contract import check_domain
+    from gpl_dist.domains import domain_names, get_domain, load_domain_module
+
+    ref = args.domain
+    names = (ref,) if ref in domain_names() else load_domain_module(ref)  # named here: imported as asked
+    failed = 0
+    for name in names:
+        spec = get_domain(name)
+        print(f"domain {name} ({spec.env_id}, {spec.num_tasks} tasks):")
+        for finding in check_domain(spec, per_split=args.tasks_per_split):
+            print(f"  {finding.line()}")
+            failed += not finding.ok
+    if failed:
+        raise UsageError(f"{ref}: {failed} check(s) of the env contract failed (named above; docs/adding-a-domain.md)")
+    print("every check held")
+    return 0
+
+
+def _train_seeds(args: argparse.Namespace, overrides: dict[str, str]) -> int:
+    """``train --seeds``: one run per training seed, ``RUN_DIR/seed<k>``, as many at once as this
+    machine's cores keep busy (``gpl_dist.app.suite.cluster.train_at_once``)."""
+    from gpl_dist.app.suite.cluster import train_at_once
+    from gpl_dist.config import load_config
+    from learner.driver import resume_config
+
+    seeds = _parse_seeds(args.seeds) or ()
+    if args.serial or args.address:
+        raise UsageError("--seeds runs its runs at once on this machine's own Ray: leave out --serial and --address")
+    runs = []
+    for seed in seeds:
+        run_dir = Path(args.run_dir) / f"seed{seed}"
+        if not args.config and not args.resume:
+            raise UsageError("--config is required (unless --resume, which goes on with each run's latest checkpoint's "
+                             "config)")
+        runs.append((load_config(args.config, {**overrides, "seed": str(seed)}, plugins="own") if args.config
+                     else resume_config(str(run_dir), overrides), str(run_dir)))
+    train_at_once(runs, resume=args.resume)
+    print(f"trained {len(runs)} run(s) under {args.run_dir} (seed{seeds[0]} .. seed{seeds[-1]}); evaluate each with: "
+          f"gpl-dist eval --run-dir {args.run_dir}/seed<k>")
     return 0
 
 
@@ -127,88 +170,26 @@ def cmd_suite_run(args: argparse.Namespace) -> int:
         raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
     suite = load_suite(args.suite)
     run_suite(suite, args.out, only=_names(args.only), seeds=_parse_seeds(args.seeds) or (), address=args.address,
-              serial=args.serial, progress=not args.no_progress)
+              serial=args.serial, progress=not args.no_progress and sys.stderr.isatty(),
+              at_once=not (args.serial or args.one_at_a_time))
     print(f"suite {args.suite}: every selected run is done; report with: gpl-dist suite report {args.out}")
     return 0
 
 
 def cmd_suite_status(args: argparse.Namespace) -> int:
-    """``gpl-dist suite status``: each run's state (done, evaluate, resume, new, or running with
-    its driver), read from its files, and the predicted wall time of what is left
-    (``gpl_dist.app.suite.cost``)."""
-    from gpl_dist.app.suite.cost import hours, predict
-    from gpl_dist.app.suite.evidence import EvidenceError
-    from gpl_dist.app.suite.runs import machine_numerics, run_state, trained_as_here
-    from gpl_dist.app.suite.spec import load_suite, plan
-    from learner.cpu import machine_summary
-    from storage.lease import lease_holder
+    """``gpl-dist suite status``: each run's state, read from its files, and the predicted wall time
+    of what is left (``gpl_dist.app.suite.status``)."""
+    from gpl_dist.app.suite.spec import load_suite
+    from gpl_dist.app.suite.status import suite_status
 
-    suite = load_suite(args.suite)
-    runs = plan(suite, args.out, _names(args.only), _parse_seeds(args.seeds) or ())
-    states, lines = {}, []
-    refused = 0
-    numerics = {True: 0, False: 0, None: 0}  # trained runs: under this machine's fingerprint, another, none recorded
-    here: set[str] = set()  # this machine's fingerprint for each run (its thread count), once per run
-    for run in runs:
-        holder = lease_holder(run.run_dir) if run.run_dir.is_dir() else None
-        try:
-            states[run.run_dir] = state = "running" if holder else run_state(run, suite)
-        except EvidenceError as err:  # not counted: named in its line, and the status exits 2
-            states[run.run_dir], state, refused = "refused", "refused", refused + 1
-            lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({' '.join(str(err).split())[:400]})"))
-            continue
-        held = f"; {holder.describe()}" if holder else ""
-        mine = machine_numerics(run, suite)
-        here.add(mine)
-        if state in ("done", "evaluate"):
-            same = trained_as_here(run, mine)
-            numerics[same] += 1
-            held += "; numerics as here" if same else ""
-        lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
-    rl_left: list = []
-    if suite.rl is not None:
-        from gpl_dist.app.suite.rl_jobs import NotTrainedYet, attempts_current, is_current, trained_fingerprint
-        from gpl_dist.app.suite.rl_plan import attempts_jobs, rl_jobs
-
-        rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
-
-        fingerprints: dict[str, str] = {}  # one checkpoint read per pretrained entry, not per job
-
-        def start(job) -> str | None:  # the fingerprint of the policy rl-finetune starts from, as trained now
-            if job.method != "rl-finetune":
-                return None
-            if job.pretrained not in fingerprints:
-                try:
-                    fingerprints[job.pretrained] = trained_fingerprint(args.out, job.pretrained)
-                except NotTrainedYet:
-                    fingerprints[job.pretrained] = "not trained"
-            return fingerprints[job.pretrained]
-        rl_left = [j for j in jobs if not is_current(args.out, j, rl_plan.settings(j.domain), start(j))]
-    cost = predict(suite, args.out, states, tuple(rl_left), measured_in=args.costs_from)
-    predicted = {c.run.run_dir: c for c in cost.runs}
-    for run, line in lines:
-        c = predicted.get(run.run_dir)
-        print(line if c is None else f"{line}  ~{hours(c.seconds)}{'' if c.source == 'entry' else f' ({c.source})'}")
-    if suite.rl is not None:
-        counts = (("RL jobs", len(jobs) - len(rl_left), len(jobs)),
-                  ("GPL/GPR attempt sets", sum(attempts_current(args.out, j, rl_plan) for j in points), len(points)))
-        for what, done, total in counts:  # made with other PPO settings or from another policy: not done
-            print(f"rl: {done} of {total} {what} done (gpl-dist suite rl {args.suite} --out {args.out})")
-    todo = len(cost.runs)
-    bound = "" if cost.complete else "at least "
-    print(f"predicted: {todo} run(s) and {cost.rl_jobs} RL job(s) left, {bound}{hours(cost.total_seconds)} on this machine "
-          f"(RL {hours(cost.rl_seconds)}), from this suite's finished work"
-          + (f" under {args.costs_from}" if args.costs_from else "")
-          + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
-          + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
-    if here:
-        print(f"numerics: this machine's {', '.join(sorted(here))} ({machine_summary()}); of the {sum(numerics.values())} "
-              f"trained runs, {numerics[True]} were trained under it ('numerics as here': trained again here they give "
-              f"the same files, bit for bit), {numerics[False]} under another (trained again here they land elsewhere "
-              f"in their entry's seed spread), {numerics[None]} before fingerprints were recorded")
-    if refused:
-        print(f"gpl-dist: error: {refused} run(s) refused: their evidence fails its checksums or its own consistency "
-              "(named above); restore them again from the archive, or remove them to train them anew", file=sys.stderr)
+    suite = load_suite(args.suite, plugins="none")
+    status = suite_status(suite, args.suite, args.out, _names(args.only), _parse_seeds(args.seeds) or (), args.costs_from)
+    for line in status.lines:
+        print(line)
+    if status.refused:
+        print(f"gpl-dist: error: {status.refused} run(s) refused: their evidence fails its checksums or its own "
+              "consistency (named above); restore them again from the archive, or remove them to train them anew",
+              file=sys.stderr)
         return 2
     return 0
 
@@ -230,10 +211,19 @@ def cmd_suite_rl(args: argparse.Namespace) -> int:
 
 
 def cmd_suite_report(args: argparse.Namespace) -> int:
-    """``gpl-dist suite report``: the paper's tables from a suite's eval files, as Markdown and HTML."""
-    from gpl_dist.app.suite.report import write_report
+    """``gpl-dist suite report``: a suite's runs as a report (its own comparison, or the paper's
+    tables for the paper's suite), Markdown and HTML, with their evidence archived beside it."""
+    from gpl_dist.app.suite.archive import archive_runs
+    from gpl_dist.app.suite.report import ARCHIVE_DIR, build_report
+    from gpl_dist.errors import RunDirError
 
-    md, html = write_report(args.suite_out, args.out)
+    suite_out, out = Path(args.suite_out), Path(args.out)
+    if not suite_out.is_dir():
+        raise RunDirError(f"no suite output at {suite_out}")
+    archive = out / ARCHIVE_DIR
+    archive.mkdir(parents=True, exist_ok=True)
+    archive_runs(suite_out, archive)  # the evidence first: the report is computed from it
+    md, html = build_report(archive, out, source=suite_out)
     print(f"wrote {md} and {html}")
     return 0
 
@@ -284,6 +274,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 0
     if not args.env:
         raise UsageError("--env is required (or --run-dir, to draw a trained policy's attempts)")
+    from gpl_dist.domains import get_domain, load_domain_module
+
+    if args.domain_module:  # named on the command line: imported as asked
+        load_domain_module(args.domain_module)
+    get_domain(args.env)  # an unknown name fails in one line naming the known ones
     actions = parse_actions(args.actions) if args.actions else None
     frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
     out = write_picture(frames, args.out)
@@ -332,140 +327,86 @@ def cmd_export(args: argparse.Namespace) -> int:
     """``gpl-dist export``: a run's committed buffer, or a folder of teaching logs, as a Minari
     dataset (``gpl_dist.app.export``)."""
     from gpl_dist.app.export import export_minari, export_teaching_minari, is_teaching_log
+    from gpl_dist.app.rundir import buffer_root
 
     if is_teaching_log(args.run_dir):
         dataset_id, n = export_teaching_minari(args.run_dir, args.out, args.dataset_id, run_dir=args.teaching_run_dir)
     else:
         if args.teaching_run_dir:
             raise UsageError(f"--teaching-run-dir is for a folder of teaching logs; {args.run_dir} is not one")
-        dataset_id, n = export_minari(args.run_dir, _buffer_root(args.run_dir), args.out, args.dataset_id)
+        dataset_id, n = export_minari(args.run_dir, buffer_root(args.run_dir), args.out, args.dataset_id)
     print(f"wrote Minari dataset {dataset_id} ({n} episodes, one per attempt) under {args.out}; read it with "
           f"MINARI_DATASETS_PATH={args.out} python -c \"import minari; print(minari.load_dataset('{dataset_id}'))\"")
     return 0
 
 
-def _print_problems(report) -> None:
-    for p in report.problems:
-        print(f"BAD  {p.path}: {p.message}")
-
-
-def _says_no_buffer(run_dir: str, root: str) -> bool:
-    """Print, for a run dir without a buffer (a run put back by ``suite restore`` has none), what it
-    holds instead; returns whether it did."""
-    if "://" in root or Path(root).exists() or not (Path(run_dir) / "config.yaml").is_file():
-        return False
-    restored = (Path(run_dir) / "suite-run.json").is_file()
-    print(f"{run_dir} has no buffer (no {root}): "
-          + ("runs restored by 'gpl-dist suite restore' carry no buffer, only " if restored else "it holds only ")
-          + "the config, metrics.jsonl, eval files and checkpoints. Teach or evaluate it (gpl-dist teach/serve/eval "
-          f"--run-dir {run_dir}); a buffer comes only from training (gpl-dist train --config {run_dir}/config.yaml "
-          "--run-dir NEW_DIR)")
-    return True
-
-
 def cmd_inspect(args: argparse.Namespace) -> int:
     """``gpl-dist inspect``: verify a run's buffer, then summarise it."""
+    from gpl_dist.app.rundir import buffer_root, no_buffer_note
     from storage import format_inspection
     from storage.verify import verify_buffer
 
-    root = _buffer_root(args.run_dir)
-    if _says_no_buffer(args.run_dir, root):
+    root = buffer_root(args.run_dir)
+    note = no_buffer_note(args.run_dir, root)
+    if note:
+        print(note)
         return 0
     report = verify_buffer(root, checksums=not args.no_verify)
-    _print_problems(report)
+    for p in report.problems:
+        print(f"BAD  {p.path}: {p.message}")
     report.raise_if_bad(f"run gpl-dist verify {args.run_dir} for the list and docs/buffer.md (Recovering)")
     print(format_inspection(root, show_tasks=args.tasks))
     return 0
 
 
-def _print_report(report) -> None:
-    _print_problems(report)
-    quarantined = f", quarantined rounds {list(report.quarantined)}" if report.quarantined else ""
-    print(f"checked {report.num_files} committed files ({report.num_bytes / 2**20:.1f} MiB) of rounds "
-          f"{list(report.rounds)}{quarantined}: {len(report.problems)} problem(s)")
-    for r in report.in_progress:
-        print(f"round {r}: a commit in progress (a driver stopped mid-commit); train --resume or clean finishes it")
-
-
-def _run_checks(path: str, root: str) -> tuple[str | None, list[str]]:
-    """For a run dir (not a bare buffer): its identity, and a ``path: what`` line for each of its
-    checkpoints that is unreadable or of another run (``learner.identity``)."""
-    if not (Path(path) / "config.yaml").is_file():
-        return None, []
-    from learner.identity import checkpoint_problems, resolve_identity
-
-    identity = resolve_identity(path, root)
-    if identity.legacy:
-        print(f"note: {path} has no run.json (made before run identities): checked as run {identity.run_id[:64]}")
-    return identity.run_id, [f"{p}: {what}" for p, what in checkpoint_problems(path, identity.run_id)]
-
-
 def cmd_verify(args: argparse.Namespace) -> int:
     """``gpl-dist verify``: check every committed file and checkpoint; ``--quarantine`` sets bad rounds aside."""
+    from gpl_dist.app.rundir import buffer_root, report_lines, run_checks
     from storage.lease import Lease
     from storage.verify import quarantine_round, verify_buffer
 
-    root = _buffer_root(args.run_dir)
-    run_id, bad_checkpoints = _run_checks(args.run_dir, root)
-    for line in bad_checkpoints:
-        print(f"BAD  {line}")
-    if bad_checkpoints:
-        print(f"gpl-dist: error: {len(bad_checkpoints)} checkpoint(s) of {args.run_dir} are unreadable or of another "
-              "run (set them aside by hand: verify never moves checkpoints)", file=sys.stderr)
+    root = buffer_root(args.run_dir)
+    checks = run_checks(args.run_dir, root)
+    for line in ([checks.note] if checks.note else []) + [f"BAD  {line}" for line in checks.problems]:
+        print(line)
+    if checks.problems:
+        print(f"gpl-dist: error: {len(checks.problems)} problem(s) with {args.run_dir}'s config.yaml or checkpoints "
+              "(named above; verify never moves them)", file=sys.stderr)
     if not args.quarantine:
-        report = verify_buffer(root, run_id=run_id)
-        _print_report(report)
+        report = verify_buffer(root, run_id=checks.run_id)
+        print("\n".join(report_lines(report)))
     else:
         with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
-            report = verify_buffer(root, run_id=run_id)
-            _print_report(report)
+            report = verify_buffer(root, run_id=checks.run_id)
+            print("\n".join(report_lines(report)))
             for r in report.bad_rounds:
                 moved = quarantine_round(root, r)
                 what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
                 print(f"quarantined round {r}: {what} under quarantine/")
             if report.bad_rounds:
-                report = verify_buffer(root, run_id=run_id)
-                _print_report(report)
-        if report.ok and not bad_checkpoints:
+                report = verify_buffer(root, run_id=checks.run_id)
+                print("\n".join(report_lines(report)))
+        if report.ok and not checks.problems:
             print(f"resume with: gpl-dist train --run-dir {args.run_dir} --resume "
                   "(rounds after the last checkpoint are collected again)")
     if report.ok:
-        return 2 if bad_checkpoints else 0
+        return 2 if checks.problems else 0
     print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
           "(set them aside with --quarantine; see docs/buffer.md, Recovering)", file=sys.stderr)
     return 2
 
 
-def _clean_run_dir(path: str, dry_run: bool) -> list[str]:
-    """Temporary files of dead writers in a run dir and its checkpoints (``learner.checkpoint.dead_temporaries``),
-    removed under the run dir's lease (no driver can be writing them meanwhile); [] for a bare buffer."""
-    if not (Path(path) / "config.yaml").is_file():
-        return []
-    from learner.checkpoint import dead_temporaries
-    from storage.lease import Lease
-
-    with Lease(path, "gpl-dist clean"):
-        found = dead_temporaries(path)
-        if not dry_run:
-            for p in found:
-                p.unlink(missing_ok=True)
-    return [str(p) for p in found]
-
-
 def cmd_clean(args: argparse.Namespace) -> int:
-    """``gpl-dist clean``: remove dead writers' leftovers from a buffer no run holds."""
-    from storage import clean_leftovers
-    from storage.verify import verify_buffer
+    """``gpl-dist clean``: remove dead writers' leftovers from a run no process holds."""
+    from gpl_dist.app.rundir import clean_run
 
-    root = _buffer_root(args.run_dir)
-    removed = clean_leftovers(root, dry_run=args.dry_run) + _clean_run_dir(args.run_dir, args.dry_run)
+    cleaned = clean_run(args.run_dir, dry_run=args.dry_run)
     verb = "would remove" if args.dry_run else "removed"
-    for path in removed:
+    for path in cleaned.removed:
         print(f"{verb} {path}")
-    print(f"{verb} {len(removed)} leftover(s)")
-    unlisted = [p for p in verify_buffer(root, checksums=False).problems if p.kind == "unlisted"]
-    if unlisted:
-        print(f"kept {len(unlisted)} path(s) under data/ that no manifest lists (clean never removes committed "
+    print(f"{verb} {len(cleaned.removed)} leftover(s)")
+    if cleaned.unlisted:
+        print(f"kept {cleaned.unlisted} path(s) under data/ that no manifest lists (clean never removes committed "
               f"data); see gpl-dist verify {args.run_dir}")
     return 0
 
@@ -481,6 +422,12 @@ def _add_foreign_checkpoint(p: argparse.ArgumentParser) -> None:
                         "written into RUN_DIR")
 
 
+def _add_trust(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--trust-domain-module", action="store_true",
+                   help="import the domain module (a .py file or a module) that a run's config names, though no run "
+                        "of this machine was started from it and no installed package declares it (it runs its code)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     from gpl_dist.domains import domain_names
@@ -494,22 +441,40 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)",
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=textwrap.fill(ROUND_LINE_LEGEND[0].upper() + ROUND_LINE_LEGEND[1:] + ".", 80,
-                                            break_on_hyphens=False))
-    p.add_argument("--config", help="YAML config (see configs/)")
+                                            break_on_hyphens=False)
+                       + "\n\nEvery config key with its default and doc: gpl-dist config [SECTION] [--domain NAME].")
+    p.add_argument("--config", help="YAML config (see configs/; every key, its default and doc: gpl-dist config)")
     p.add_argument("--run-dir", required=True, help="where the buffer, checkpoints and metrics go")
     p.add_argument("--num-workers", type=int, help="rollout actors (overrides collection.num_workers)")
     p.add_argument("--address", help="join an existing Ray cluster (e.g. 'auto') instead of starting a local one")
     p.add_argument("--serial", action="store_true", help="run one worker in this process, without Ray")
     p.add_argument("--resume", action="store_true", help="continue from the run dir's last checkpoint")
+    p.add_argument("--seeds", help="train one run per seed (comma-separated) in RUN_DIR/seed<k>, as many at once as keep "
+                   "this machine's cores busy; each run's files are what it gives alone")
+    _add_trust(p)
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("check-domain", help="hold a domain (a .py file, a module, or a registered name) to the env "
+                       "contract: each check in a line")
+    p.add_argument("domain", metavar="FILE_OR_MODULE", help="a .py file or module defining DOMAIN (imported: its code "
+                   "runs), or a registered domain's name")
+    p.add_argument("--tasks-per-split", type=int, default=3, help="tasks of each split the sampling checks use")
+    p.set_defaults(func=cmd_check_domain)
+
+    p = sub.add_parser("config", help="every config key with its default and its one-line doc")
+    p.add_argument("section", nargs="?", help="one section only (env, collection, buffer, model, training, eval)")
+    p.add_argument("--domain", help="fill in the defaults this domain gives (its expert, splits and layer sizes)")
+    p.add_argument("--domain-module", help="with --domain: the module or .py file that defines it (imported: its code runs)")
+    p.set_defaults(func=cmd_config)
 
     p = sub.add_parser("eval", help="meta-test a trained run on held-out tasks (Algorithm 2)",
                        description="Meta-test a trained run. Writes RUN_DIR/eval.json and eval.png with the run's "
                                    "own eval settings; other settings write eval-<what differs>.json/.png "
                                    "(eval-greedy.json, eval-c10.json, ...), leaving eval.json as it was.")
     p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt and config.yaml)")
+    _add_trust(p)
     p.add_argument("--corrections", type=int, help="corrections to give (default: eval.num_corrections)")
     p.add_argument("--seeds", help="comma-separated seeds (default: eval.seeds)")
     p.add_argument("--split", help="task split (default: eval.split)")
@@ -542,7 +507,10 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "run":
             q.add_argument("--address", help="a Ray cluster: run the entries at once, each as a Ray task")
             q.add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
+            q.add_argument("--one-at-a-time", action="store_true", help="one run after another, each with its config's "
+                           "workers (default: as many runs at once as keep this machine's cores busy)")
             q.add_argument("--no-progress", action="store_true", help="no progress bars")
+            _add_trust(q)
         else:
             q.add_argument("--costs-from", help="predict from the finished runs and RL results of this suite folder "
                                                 "(default: --out's own)")
@@ -553,8 +521,10 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--domains", help="comma-separated domains (default: every domain of the rl section)")
     q.add_argument("--address", help="a Ray cluster (default: local Ray with every core)")
     q.add_argument("--serial", action="store_true", help="one job after another in this process, without Ray")
+    _add_trust(q)
     q.set_defaults(func=cmd_suite_rl)
-    q = suite_sub.add_parser("report", help="the paper's tables from a suite's runs (Markdown and HTML)")
+    q = suite_sub.add_parser("report", help="a suite's runs as a report (its own comparison against its reference "
+                             "entry, or the paper's tables for the paper's suite), Markdown and HTML")
     q.add_argument("suite_out", help="the suite's folder of run dirs")
     q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
     q.set_defaults(func=cmd_suite_report)
@@ -567,6 +537,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("suite_out", help="the suite's folder of run dirs")
         q.add_argument("--only", help="comma-separated entry names")
         q.add_argument("--seeds", help="comma-separated training seeds")
+        _add_trust(q)
         q.set_defaults(func=func)
     q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
                              "where 'suite run' then skips them")
@@ -575,8 +546,12 @@ def build_parser() -> argparse.ArgumentParser:
     q.set_defaults(func=cmd_suite_restore)
 
     p = sub.add_parser("render", help="draw a task (PNG), an attempt (GIF), or a trained policy's attempts (GIF)")
-    p.add_argument("--env", choices=domain_names(), help="the domain of the task to draw (not with --run-dir)")
+    p.add_argument("--env", metavar="DOMAIN", help=f"the domain of the task to draw ({', '.join(domain_names())} or a "
+                   "plug-in's; not with --run-dir)")
+    p.add_argument("--domain-module", help="with --env: the module or .py file that defines a plug-in domain (imported: "
+                   "its code runs)")
     p.add_argument("--run-dir", help="draw this run's trained policy: its successive attempts and the corrections between")
+    _add_trust(p)
     p.add_argument("--attempts", type=int, default=5, help="with --run-dir: attempts to draw (corrections + 1)")
     p.add_argument("--checkpoint", help="with --run-dir: checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     _add_foreign_checkpoint(p)
@@ -595,6 +570,7 @@ def build_parser() -> argparse.ArgumentParser:
             "after each attempt, type a correction, or one of the commands ':hint' (what the run's oracle would say), "
             "':undo' (take the last correction back), ':quit'" if name == "teach" else None))
         p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt)")
+        _add_trust(p)
         p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
         _add_foreign_checkpoint(p)
         p.add_argument("--split", default="test", help="split of the tasks drawn or matched (default test: held out)")
@@ -616,6 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", metavar="PATH", help="a run dir with a buffer, or a folder of teaching logs "
                                                    "(RUN_DIR/teaching/log: every attempt replayed from its seed)")
     p.add_argument("--format", choices=("minari",), default="minari", help="dataset format (Minari's arrow storage)")
+    _add_trust(p)
     p.add_argument("--out", required=True, help="the Minari datasets folder (MINARI_DATASETS_PATH) to write into")
     p.add_argument("--dataset-id", help="dataset id (default gpl-dist/<domain>-<folder name>-v0)")
     p.add_argument("--teaching-run-dir", help="teaching logs only: the run dir to replay with, in place of the one "
@@ -646,9 +623,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from gpl_dist.domains import trust_all_domain_modules
     from gpl_dist.errors import UserError
     from gpl_dist.signals import SIGTERM_STATUS, end_on_sigterm, received_sigterm
 
+    trust_all_domain_modules(bool(getattr(args, "trust_domain_module", False)))
     end_on_sigterm()
     try:
         return args.func(args)

@@ -15,6 +15,7 @@ import os
 import re
 import reprlib
 import textwrap
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -66,7 +67,11 @@ class CollectionConfig:
     max_unit_retries: int = 3
     """How often a failed work unit is handed out again before the round fails."""
     unit_timeout_s: float = 1800.0
-    """Seconds a unit may be out on a Ray actor with no result before it is a failed try and the actor replaced."""
+    """Most seconds a unit may be out on a Ray actor with no result before it is a failed try and the actor replaced."""
+    unit_timeout_multiple: float = 10.0
+    """A unit's timeout on Ray: this many times the run's median unit time so far (within the floor and unit_timeout_s)."""
+    unit_timeout_floor_s: float = 60.0
+    """Least seconds a unit may be out on a Ray actor with no result (the adaptive timeout's floor; unit_timeout_s caps it)."""
 
 
 @dataclass(frozen=True)
@@ -107,6 +112,35 @@ class ModelConfig:
     """Output width of GPL's correction encoder (0: the domain's appendix value, 4 in multi-room; the authors' code: 32)."""
     encoder_activation: str = "relu"
     """Activation of GPL's conditioning encoders (convolutions and MLPs): relu (the paper's) or leaky_relu (no dead zone)."""
+    # Layer sizes (``gpl_dist.models.sizes.Sizes``): null keeps the domain's (``gpl-dist config --domain NAME`` shows them).
+    state_channels: tuple[int, ...] | None = None
+    """Filters of each 2-D convolution of the policy's state encoder, grid observations (null: the domain's)."""
+    state_mlp: tuple[int, ...] | None = None
+    """Hidden widths of the MLP after the policy's state convolutions, grid observations (null: the domain's)."""
+    traj_state_channels: tuple[int, ...] | None = None
+    """Filters of each 2-D convolution encoding one state of an earlier attempt, grid observations (null: the domain's)."""
+    traj_state_mlp: tuple[int, ...] | None = None
+    """Widths of the MLP after the trajectory's state convolutions, grid observations (null: the domain's)."""
+    traj_conv: int | None = None
+    """Filters of the 1-D convolution over an earlier attempt's states in time (null: the domain's)."""
+    traj_mlp: tuple[int, ...] | None = None
+    """Widths of the trajectory encoder's MLP; the last is the encoding's width (null: the domain's)."""
+    text_conv: int | None = None
+    """Filters of the 1-D convolution over the words of an instruction or correction (null: the domain's)."""
+    correction_mlp: tuple[int, ...] | None = None
+    """Widths of the correction encoder's MLP, the last its encoding's (null: the domain's; correction_width sets the last)."""
+    instruction_mlp: tuple[int, ...] | None = None
+    """Widths of the instruction encoder's MLP; the last is the encoding's width (null: the domain's)."""
+    pair_mlp: tuple[int, ...] | None = None
+    """Widths of the MLP over an (attempt, correction) pair; the last is its encoding's width (null: the domain's)."""
+    pair_final_relu: bool | None = None
+    """Whether that pair MLP's last layer ends in a ReLU (null: the domain's; narrow last layers can die whole)."""
+    policy_mlp: tuple[int, ...] | None = None
+    """Hidden widths of the policy's MLP over the state and the conditioning (null: the domain's)."""
+
+
+#: ``ModelConfig``'s layer sizes: the fields of ``gpl_dist.models.sizes.Sizes`` (a test checks they match).
+LAYER_SIZE_KEYS = tuple(f.name for f in dataclasses.fields(ModelConfig) if f.default is None)
 
 
 @dataclass(frozen=True)
@@ -197,6 +231,51 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+@dataclass(frozen=True)
+class KeyDoc:
+    """One config key as ``gpl-dist config`` lists it: its dotted name, type, default and doc."""
+
+    key: str
+    type: str
+    default: Any
+    doc: str
+
+
+def describe_keys(section: str | None = None, domain: str | None = None) -> list[KeyDoc]:
+    """Every config key (of ``section`` only, when given) with its type, default and one-line doc.
+    With ``domain`` (a registered domain), the defaults it gives are filled in: its expert, its
+    training and evaluation splits, and its layer sizes (``model.*``)."""
+    sections = {f.name: f for f in dataclasses.fields(RunConfig)}
+    if section is not None and section not in sections:
+        raise ConfigError(f"no config section '{section}' (sections: {', '.join(sections)})")
+    defaults = RunConfig() if domain is None else config_from_dict({"env": {"domain": domain}}, plugins="none")
+    sizes: dict[str, Any] = {}
+    if domain is not None:
+        from gpl_dist.domains import get_domain
+
+        spec = get_domain(domain)
+        sizes = {f.name: getattr(spec.model_sizes, f.name) for f in dataclasses.fields(spec.model_sizes)}
+    out = []
+    top_docs = field_docs(RunConfig)
+    for name, f in sections.items():
+        if section is not None and name != section:
+            continue
+        value = getattr(defaults, name)
+        if not dataclasses.is_dataclass(value):
+            out.append(KeyDoc(name, _type_name(typing.get_type_hints(RunConfig)[name]), value, top_docs.get(name, "")))
+            continue
+        cls = type(value)
+        hints, docs = typing.get_type_hints(cls), field_docs(cls)
+        for sub in dataclasses.fields(value):
+            default = getattr(value, sub.name)
+            if name == "model" and default is None and sub.name in sizes:
+                default = sizes[sub.name]
+            tp = hints[sub.name]
+            out.append(KeyDoc(f"{name}.{sub.name}", str(tp).replace("typing.", "") if typing.get_origin(tp) else
+                              _type_name(tp), default, docs.get(sub.name, "")))
+    return out
+
+
 def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
@@ -206,6 +285,11 @@ _SCIENTIFIC = re.compile(r"^[+-]?(\d+(\.\d*)?|\.\d+)[eE][+-]?\d+$")
 
 def _coerce(value: Any, tp: Any, where: str) -> Any:
     origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType) and type(None) in typing.get_args(tp):  # X | None: null allowed
+        if value is None:
+            return None
+        (inner,) = [a for a in typing.get_args(tp) if a is not type(None)]
+        return _coerce(value, inner, where)
     if tp in (int, float) and isinstance(value, str) and _SCIENTIFIC.match(value.strip()):
         # YAML 1.1 reads "1e6" as a string; people write buffer sizes that way.
         value = float(value)
@@ -271,8 +355,18 @@ def eval_config_from_dict(values: Mapping[str, Any], where: str = "eval") -> Eva
     return cfg
 
 
-def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>") -> RunConfig:
-    """Build a ``RunConfig`` from nested mappings; unspecified fields keep their defaults."""
+#: How a config's ``env.domain_module`` is treated (``config_from_dict``'s ``plugins``):
+#: ``own``: the user's own config file: import it (and remember the file as trusted, ``gpl_dist.domains``);
+#: ``run``: a config read from a run dir or a checkpoint (data): import it only where
+#: ``gpl_dist.domains.domain_module_allowed`` says so, else ``PluginRefused`` in one line;
+#: ``none``: import nothing (commands that only read a run): a domain that is not known without it
+#: keeps the values the saved config holds, unchecked against the domain.
+PLUGIN_POLICIES = ("own", "run", "none")
+
+
+def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>", plugins: str = "run") -> RunConfig:
+    """Build a ``RunConfig`` from nested mappings; unspecified fields keep their defaults.
+    ``plugins`` (``PLUGIN_POLICIES``) says whether its domain module may be imported."""
     values = values or {}
     if not isinstance(values, Mapping):
         raise ConfigError(f"{source}: top level must be a mapping, got {type(values).__name__}")
@@ -280,26 +374,38 @@ def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>") -
         cfg = _build(RunConfig, values, "")
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
-    cfg = _with_domain_defaults(cfg, source)
+    cfg = _with_domain_defaults(cfg, source, plugins)
+    from gpl_dist.domains import domain_names
+
+    if plugins == "none" and cfg.env.domain not in domain_names():
+        return cfg  # a plug-in domain this process does not know, read without its module
     validate(cfg, source)
     return cfg
 
 
-def _with_domain_defaults(cfg: RunConfig, source: str) -> RunConfig:
-    """``cfg`` with its domain's module imported (``env.domain_module``) and the fields left "" set
-    to the domain's defaults (expert, training and evaluation splits); an unknown domain is left
-    for ``validate`` to name."""
-    from gpl_dist.domains import load_domain_module
+def _with_domain_defaults(cfg: RunConfig, source: str, plugins: str = "run") -> RunConfig:
+    """``cfg`` with its domain's module imported (``env.domain_module``, as ``plugins`` allows) and
+    the fields left "" set to the domain's defaults (expert, training and evaluation splits); an
+    unknown domain is left for ``validate`` to name."""
+    from gpl_dist.domains import domain_module_allowed, load_domain_module, trust_domain_module
 
-    if cfg.env.domain_module:
+    if plugins not in PLUGIN_POLICIES:
+        raise ValueError(f"plugins must be one of {PLUGIN_POLICIES}, got {plugins!r}")
+    if cfg.env.domain_module and plugins != "none":
         try:
+            if plugins == "run":
+                domain_module_allowed(cfg.env.domain_module)
             load_domain_module(cfg.env.domain_module)
+            if plugins == "own":
+                trust_domain_module(cfg.env.domain_module)
         except UserError as err:
             raise ConfigError(f"{source}: env.domain_module: {err}") from None
     return dataclasses.replace(cfg)  # __post_init__ again, now that a plug-in domain is registered
 
 
-def _set_override(tree: dict, dotted: str, raw: str) -> None:
+def set_override(tree: dict, dotted: str, raw: str) -> None:
+    """Set the dotted key ``dotted`` of the config ``tree`` to the YAML value ``raw`` (``--set``);
+    ``ConfigError`` in one line for a value too long, malformed, or under a non-section."""
     keys = dotted.split(".")
     node = tree
     for key in keys[:-1]:
@@ -318,8 +424,11 @@ def _set_override(tree: dict, dotted: str, raw: str) -> None:
         raise ConfigError(f"override {dotted}={raw[:80]!r}: the value is not valid YAML") from None
 
 
-def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | None = None) -> RunConfig:
-    """Load a YAML config, then apply ``overrides`` (dotted key -> YAML-typed value string)."""
+def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | None = None,
+                plugins: str = "run") -> RunConfig:
+    """Load a YAML config, then apply ``overrides`` (dotted key -> YAML-typed value string).
+    ``plugins``: ``own`` for the user's own config file, ``run`` (default) for a run's
+    ``config.yaml``, ``none`` to read it without importing its domain module (``PLUGIN_POLICIES``)."""
     tree: dict = {}
     source = "<defaults>"
     if path is not None:
@@ -334,10 +443,10 @@ def load_config(path: str | os.PathLike | None, overrides: Mapping[str, str] | N
         if not isinstance(tree, dict):
             raise ConfigError(f"{p}: top level must be a mapping")
     for dotted, raw in (overrides or {}).items():
-        _set_override(tree, dotted, raw)
+        set_override(tree, dotted, raw)
     if overrides:
         source += " with --set " + " ".join(sorted(overrides))[:120]
-    return config_from_dict(tree, source)
+    return config_from_dict(tree, source, plugins)
 
 
 #: Corrections per task, in collection and at meta-test: the paper goes to 10; each one adds a
@@ -378,9 +487,13 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         (cfg.collection.tasks_per_unit >= 1, "collection.tasks_per_unit must be at least 1"),
         (cfg.collection.max_unit_retries >= 0, "collection.max_unit_retries must be >= 0"),
         (cfg.collection.unit_timeout_s > 0, "collection.unit_timeout_s must be positive"),
+        (cfg.collection.unit_timeout_multiple >= 1,
+         f"collection.unit_timeout_multiple must be at least 1, got {cfg.collection.unit_timeout_multiple:g}"),
+        (cfg.collection.unit_timeout_floor_s > 0, "collection.unit_timeout_floor_s must be positive"),
         (cfg.buffer.capacity_tuples >= 1, "buffer.capacity_tuples must be at least 1"),
         (cfg.model.embedding_dim >= 1, "model.embedding_dim must be at least 1"),
         (cfg.model.correction_width >= 0, "model.correction_width must be >= 0 (0: the domain's appendix value)"),
+        *_size_checks(cfg.model),
         (cfg.training.num_rounds >= 1, "training.num_rounds must be at least 1"),
         (cfg.training.num_epochs_per_round >= 0, "training.num_epochs_per_round must be >= 0"),
         (cfg.training.learning_rate > 0, "training.learning_rate must be positive"),
@@ -402,6 +515,24 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
     for ok, message in _domain_checks(cfg):
         if not ok:
             raise ConfigError(f"{source}: {message}")
+
+
+def _size_checks(model: ModelConfig) -> list[tuple[bool, str]]:
+    """Each layer size the ``model`` section sets: widths of at least 1, MLPs of at least one layer
+    where the network needs an output width."""
+    checks = []
+    needs_a_layer = ("traj_mlp", "correction_mlp", "instruction_mlp", "pair_mlp")
+    for name in LAYER_SIZE_KEYS:
+        value = getattr(model, name)
+        if value is None or isinstance(value, bool):
+            continue
+        widths = value if isinstance(value, tuple) else (value,)
+        checks.append((all(1 <= w <= 65536 for w in widths),
+                       f"model.{name} must hold widths in 1..65536, got {bounded_repr(value)}"))
+        checks.append((len(widths) <= 16, f"model.{name} may have at most 16 layers, got {len(widths)}"))
+        if name in needs_a_layer:
+            checks.append((len(widths) >= 1, f"model.{name} needs at least one layer (its last width is its encoding's)"))
+    return checks
 
 
 def _domain_checks(cfg: RunConfig) -> list[tuple[bool, str]]:
@@ -496,10 +627,13 @@ _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
 
 
 def config_to_dict(cfg: Any) -> dict:
-    """Plain nested dict of a config (tuples become lists), for YAML."""
+    """Plain nested dict of a config (tuples become lists), for YAML. A field left None (a layer
+    size the domain gives) is left out: the dict says only what the config sets."""
     out = {}
     for f in dataclasses.fields(cfg):
         value = getattr(cfg, f.name)
+        if value is None:
+            continue
         if dataclasses.is_dataclass(value):
             value = config_to_dict(value)
         elif isinstance(value, tuple):
@@ -510,7 +644,7 @@ def config_to_dict(cfg: Any) -> dict:
 
 #: Settings that change how fast a run trains, never what it computes (tested bitwise): a run
 #: made with other values of these is the same run (``results_dict``).
-SPEED_ONLY = (("training", "conditioning_thread"),)
+SPEED_ONLY = (("training", "conditioning_thread"), ("collection", "num_workers"))
 
 
 def results_dict(cfg: RunConfig) -> dict:

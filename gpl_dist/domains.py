@@ -12,13 +12,24 @@ A domain from outside the package comes in one of two ways (``docs/adding-a-doma
   every process finds it by name, Ray actors too;
 - a run's config names the module or ``.py`` file that defines it, ``env.domain_module``; the
   config travels with the run (its workers, ``eval``, ``--resume``), so each imports it again.
+
+Reading data never runs code: a config read from a run dir or a checkpoint (data, which anyone may
+have written) imports its ``env.domain_module`` only when ``domain_module_allowed`` says so: the
+module is an installed entry point's, or was imported already in this process, or this machine
+trained with that very file (the path and sha256 that ``trust_domain_module`` recorded when a user's
+own config named it), or the user passed ``--trust-domain-module`` (``trust_all_domain_modules``).
+Otherwise ``PluginRefused`` names the file and its sha256. Commands that only read a run (``verify``,
+``inspect``, ``suite report|status|restore``) never import it at all.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import importlib.util
+import json
+import os
 import sys
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -50,8 +61,21 @@ def register_domain(spec: DomainSpec) -> DomainSpec:
         raise ValueError(f"domain '{spec.name}': {'; '.join(problems)}")
     _REGISTERED[spec.name] = spec
     if spec.env_id not in registry:
-        register(id=spec.env_id, entry_point=spec.make_env, max_episode_steps=spec.steps_per_attempt)
+        register(id=spec.env_id, entry_point=_env_maker(spec), max_episode_steps=spec.steps_per_attempt)
     return spec
+
+
+def _env_maker(spec: DomainSpec):
+    """``gym.make``'s entry point of a domain: its ``make_env``, which needs the task; without one,
+    a ``TypeError`` that says how to name it (a gpl-dist env is one task, never a drawn one)."""
+    def make(task_id: int | None = None, **kwargs):
+        if task_id is None:
+            raise TypeError(f"{spec.env_id} is one task of {spec.num_tasks}: name it, e.g. "
+                            f"gymnasium.make('{spec.env_id}', task_id=0) (task ids 0..{spec.num_tasks - 1}; "
+                            "gpl_dist.splits.load_splits gives each split's)")
+        return spec.make_env(task_id, **kwargs)
+
+    return make
 
 
 def unregister_domain(name: str) -> None:
@@ -67,8 +91,10 @@ def unregister_domain(name: str) -> None:
 ENTRY_POINT_GROUP = "gpl_dist.domains"
 
 
+@functools.lru_cache(maxsize=1)
 def _plugins() -> dict[str, str]:
-    """Domain name -> module of every installed plug-in (entry points), without importing any."""
+    """Domain name -> module of every installed plug-in (entry points), without importing any
+    (read once per process: installing a package takes a new process to be seen)."""
     return {ep.name: ep.value for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
@@ -92,6 +118,103 @@ def get_domain(name: str) -> DomainSpec:
     return _REGISTERED[name]
 
 
+class PluginRefused(UsageError):
+    """A run's config names a domain module that this process may not import unasked."""
+
+
+#: Environment variable naming the file of trusted plug-in files (default: under XDG_CONFIG_HOME).
+TRUST_FILE_ENV = "GPL_DIST_TRUST_FILE"
+_TRUST_ALL = False
+
+
+def trust_file() -> Path:
+    """The file that lists the plug-in files this machine's user trained with (path and sha256)."""
+    if os.environ.get(TRUST_FILE_ENV):
+        return Path(os.environ[TRUST_FILE_ENV])
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return Path(base) / "gpl-dist" / "trusted-domain-modules.json"
+
+
+def trust_all_domain_modules(on: bool = True) -> None:
+    """``--trust-domain-module``: let this process import the domain module a run's config names."""
+    global _TRUST_ALL
+    _TRUST_ALL = on
+
+
+def _module_key(ref: str) -> tuple[str, str]:
+    """What a domain module reference is trusted as: (resolved path, sha256 of its bytes) for a file;
+    (dotted name, "") for a module."""
+    ref = str(ref).strip()
+    if not ref.endswith(".py"):
+        return ref, ""
+    path = Path(ref).expanduser().resolve()
+    try:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        digest = ""
+    return str(path), digest
+
+
+def _trusted() -> list[dict]:
+    try:
+        entries = json.loads(trust_file().read_text()[: 1 << 20])
+    except (OSError, ValueError):
+        return []
+    return [e for e in entries if isinstance(e, dict)] if isinstance(entries, list) else []
+
+
+def trust_domain_module(ref: str) -> None:
+    """Record ``ref`` (its path and sha256, or its module name) as trusted by this machine's user:
+    a run made from the user's own config, or ``--trust-domain-module``."""
+    name, digest = _module_key(ref)
+    entry = {"module": name, "sha256": digest}
+    entries = _trusted()
+    if entry in entries:
+        return
+    path = trust_file()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps([*entries, entry], indent=1) + "\n")
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)  # trust is then asked for again next time; nothing else is lost
+
+
+def _loaded(ref: str) -> bool:
+    name, _ = _module_key(ref)
+    if not ref.strip().endswith(".py"):
+        return name in sys.modules
+    return _file_module_name(Path(name)) in sys.modules
+
+
+def _entry_point_modules() -> set[str]:
+    return {value.split(":")[0] for value in _plugins().values()}
+
+
+def domain_module_allowed(ref: str) -> None:
+    """Return when the domain module ``ref`` that a run's data names may be imported (see the module
+    docstring); ``PluginRefused`` naming it otherwise."""
+    name, digest = _module_key(ref)
+    if _TRUST_ALL or _loaded(ref):
+        return
+    if not digest and name in _entry_point_modules():
+        return
+    if {"module": name, "sha256": digest} in _trusted():
+        return
+    if digest:
+        raise PluginRefused(f"this run's config names the plug-in file {name} (sha256 {digest}), which no run of "
+                            "this machine was started from: read it, then pass --trust-domain-module to import it")
+    if ref.strip().endswith(".py"):
+        raise PluginRefused(f"domain module {ref}: no such file")
+    raise PluginRefused(f"this run's config names the module {name[:200]}, which no installed package declares as a "
+                        f"'{ENTRY_POINT_GROUP}' entry point: pass --trust-domain-module to import it")
+
+
+def _file_module_name(path: Path) -> str:
+    return f"gpl_dist_domain_{path.stem}_{hashlib.sha256(str(path).encode()).hexdigest()[:12]}"
+
+
 def load_domain_module(ref: str) -> tuple[str, ...]:
     """Import ``ref`` (a dotted module name, or the path of a ``.py`` file) and register the
     ``DomainSpec`` it defines as ``DOMAIN``; returns the names registered. Importing it again (the
@@ -101,7 +224,7 @@ def load_domain_module(ref: str) -> tuple[str, ...]:
         path = Path(ref).expanduser().resolve()
         if not path.is_file():
             raise UsageError(f"domain module {ref}: no such file")
-        name = f"gpl_dist_domain_{path.stem}_{hashlib.sha256(str(path).encode()).hexdigest()[:12]}"
+        name = _file_module_name(path)
         module = sys.modules.get(name)
         if module is None:
             spec = importlib.util.spec_from_file_location(name, path)

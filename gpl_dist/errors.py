@@ -24,5 +24,10 @@ class UsageError(UserError, ValueError):
     split, task, expert or correction kind). Also a ``ValueError``, for callers of the library."""
 
 
+class ContractError(UserError):
+    """A domain broke the env contract while a run used it (``docs/adding-a-domain.md``; ``gpl-dist
+    check-domain`` checks a domain before any run): the message names the task and the value."""
+
+
 class SuiteError(UserError):
     """Suite runs failed on a cluster (each named; running the suite again resumes them)."""

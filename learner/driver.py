@@ -3,23 +3,40 @@
 Run directory layout::
 
     RUN_DIR/run.json             the run's identity (``learner.identity``), written when it is created
-    RUN_DIR/config.yaml          resolved config of the run
+    RUN_DIR/config.yaml          resolved config of the run as it was created (its first round's)
     RUN_DIR/buffer/              sharded buffer (unless buffer.location points elsewhere)
-    RUN_DIR/checkpoints/         latest.pt and round-NNNNNN.pt (atomic)
+    RUN_DIR/checkpoints/         latest.pt and round-NNNNNN.pt (atomic), each with the config its round used
     RUN_DIR/metrics.jsonl        one JSON line per round
     RUN_DIR/tb/                  TensorBoard scalars
 
 ``--resume`` continues after the last checkpointed round. A round whose manifest was committed
 before the driver died is not collected again: training resumes on the committed buffer.
+
+What ``--resume`` changes. A resume continues with the config of the run's latest checkpoint (what
+its last round used; ``resume_config``), with ``--set`` on top. A setting in ``RESUMABLE`` is one
+the driver and the learner read afresh for every round (the number of rounds, Adam's learning
+rate, epochs and batches, the view's capacity, the collection's workers and timeouts, where and on
+how many threads and processes the learner runs, the evaluation's settings): a new value applies
+from the next round on, and a line says so (``--resume changes training.learning_rate 0.001 ->
+0.5 from round 2``). Any other change (the seed, the domain and its tasks, oracle and expert, the
+model, how units are collected, where the buffer lives, and a setting added later until it is
+listed) would change what the rounds already trained or committed mean: it is refused in one line
+naming the key, the old and the new value, before anything is written. The record, per round:
+``config.yaml`` is the run's config as created and is never rewritten by a resume; every round's
+checkpoint holds the config that round used; and the ``metrics.jsonl`` line of the first round a
+change applies to records it (``config_changes``: key -> [old, new]). The config of round R is
+``config.yaml`` with the ``config_changes`` of rounds 0..R applied, and is ``round-R.pt``'s.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import logging
 import os
 import time
+from collections.abc import Mapping
 from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -28,10 +45,19 @@ from typing import Any
 import numpy as np
 import torch
 
-from gpl_dist.config import ConfigError, RunConfig, config_from_dict, config_to_dict, save_config
+from gpl_dist.config import (
+    ConfigError,
+    RunConfig,
+    bounded_repr,
+    config_from_dict,
+    config_to_dict,
+    load_config,
+    save_config,
+    set_override,
+)
 from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.domains import get_domain
-from gpl_dist.errors import RunDirError
+from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.metrics import ROUND_LINE_LEGEND, completion_by_corrections
 from gpl_dist.models.build import build_model_from_config
 from gpl_dist.records import WorkUnit
@@ -115,6 +141,8 @@ class RoundMetrics:
         train_steps: gradient steps.
         correction_spread: see ``learner.trainer.RoundStats``.
         encoder_health: see ``learner.trainer.RoundStats``.
+        config_changes: ``(key, old, new)`` of each setting a ``--resume`` changed from this round
+            on (dotted keys; written ``{key: [old, new]}``, and only when there are some).
     """
 
     round_index: int
@@ -130,11 +158,15 @@ class RoundMetrics:
     train_steps: int
     correction_spread: float | None
     encoder_health: tuple[EncoderHealth, ...] = ()
+    config_changes: tuple[tuple[str, Any, Any], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d.update(failed_tasks=list(self.failed_tasks), completion_by_corrections=list(self.completion_by_corrections),
                  encoder_health=[h.to_list() for h in self.encoder_health])
+        d.pop("config_changes")
+        if self.config_changes:  # absent otherwise: a run without changes writes its lines as before
+            d["config_changes"] = {key: [old, new] for key, old, new in self.config_changes}
         return {"round": d.pop("round_index"), **d}
 
     @classmethod
@@ -145,7 +177,8 @@ class RoundMetrics:
                    completion_by_corrections=tuple(d["completion_by_corrections"]), buffer_tuples=int(d["buffer_tuples"]),
                    loss=float(d["loss"]), accuracy=float(d["accuracy"]), train_seconds=float(d["train_seconds"]),
                    train_steps=int(d.get("train_steps", 0)), correction_spread=d.get("correction_spread"),
-                   encoder_health=tuple(EncoderHealth.from_list(row) for row in d.get("encoder_health") or ()))
+                   encoder_health=tuple(EncoderHealth.from_list(row) for row in d.get("encoder_health") or ()),
+                   config_changes=tuple((str(k), v[0], v[1]) for k, v in (d.get("config_changes") or {}).items()))
 
 
 @dataclass(frozen=True)
@@ -240,10 +273,68 @@ def verify_for_resume(root: str, ckpt: Checkpoint | None, run_dir: Path, identit
                                        f"{missing} are not committed (a different buffer?); {hint}")
 
 
-def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> None:
+#: What ``--resume`` may change (dotted keys; a section's name covers all its keys): settings read
+#: afresh for every round, so that a new value applies from the next round on (module docstring).
+RESUMABLE = frozenset({
+    "training.num_rounds", "training.learning_rate", "training.num_epochs_per_round", "training.batch_size",
+    "training.states_per_chunk", "training.device", "training.num_threads", "training.conditioning_thread",
+    "training.num_learners", "training.engine",
+    "collection.num_workers", "collection.max_unit_retries", "collection.unit_timeout_s",
+    "collection.unit_timeout_multiple", "collection.unit_timeout_floor_s",
+    "buffer.capacity_tuples",
+    "eval",
+})
+
+
+def resumable(key: str) -> bool:
+    """Whether ``--resume`` may change the dotted config ``key`` (``RESUMABLE``)."""
+    return key in RESUMABLE or key.split(".", 1)[0] in RESUMABLE
+
+
+def _dotted(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, Mapping):
+            out.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def config_changes(before: RunConfig, after: RunConfig) -> tuple[tuple[str, Any, Any], ...]:
+    """``(dotted key, old, new)`` of every setting that differs between two configs (as YAML writes them)."""
+    old, new = _dotted(config_to_dict(before)), _dotted(config_to_dict(after))
+    return tuple((key, old.get(key), value) for key, value in new.items() if old.get(key) != value)
+
+
+def _show(value: Any) -> str:
+    """A config value in a message: as YAML would read it back, cut (a value can be long)."""
+    if value == "":
+        return '""'
+    return bounded_repr(value, 80) if isinstance(value, (list, tuple, dict)) else str(value)[:160]
+
+
+def resume_config(run_dir: str | Path, overrides: Mapping[str, str] | None = None) -> RunConfig:
+    """The config ``train --resume`` continues a run with when no ``--config`` is given: the one its
+    latest checkpoint holds (its last round's, changes of earlier resumes included), else, before a
+    first checkpoint, its ``config.yaml``; ``overrides`` (``--set``) on top."""
+    run_dir = Path(run_dir)
+    latest = run_dir / "checkpoints" / LATEST
+    if not latest.is_file():
+        return load_config(run_dir / "config.yaml", overrides)
+    tree = copy.deepcopy(load_checkpoint(latest).config)
+    for dotted, raw in (overrides or {}).items():
+        set_override(tree, dotted, raw)
+    source = f"{latest} (its config)" + (" with --set " + " ".join(sorted(overrides))[:120] if overrides else "")
+    return config_from_dict(tree, source)
+
+
+def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> tuple[tuple[str, Any, Any], ...]:
     """What ``--resume`` must refuse before any work: a run whose latest checkpoint is gone while
-    it has trained rounds (starting over would overwrite them), and a change of the domain or of
-    the model (the checkpoint would not fit, or would silently become another method)."""
+    it has trained rounds (starting over would overwrite them), and a change that it cannot apply
+    honestly (not ``resumable``: it would change what the rounds already done mean; module
+    docstring). Returns the changes it applies, against the checkpoint's config (else, before a
+    first checkpoint, ``config.yaml``'s)."""
     if ckpt is None:
         trained = sorted((run_dir / "checkpoints").glob("round-*.pt"))
         metrics = run_dir / "metrics.jsonl"
@@ -252,14 +343,19 @@ def check_resumable(cfg: RunConfig, run_dir: Path, ckpt: Checkpoint | None) -> N
             raise RunDirError(f"{run_dir / 'checkpoints' / LATEST} is missing but the run has trained rounds "
                               f"(newest round checkpoint: {newest}); copy that file to {LATEST} to resume from it, "
                               "or train into another --run-dir")
-        return
-    saved = config_from_dict(ckpt.config, "the checkpoint's config")
-    changed = [f"env.domain ({saved.env.domain} -> {cfg.env.domain})"] if saved.env.domain != cfg.env.domain else []
-    changed += [f"model.{f.name} ({getattr(saved.model, f.name)} -> {getattr(cfg.model, f.name)})"
-                for f in dataclasses.fields(cfg.model) if getattr(saved.model, f.name) != getattr(cfg.model, f.name)]
-    if changed:
-        raise ConfigError(f"--resume cannot change {', '.join(changed)}: the checkpoint was trained so; "
-                          "start a new run for another domain or model")
+        if not (run_dir / "config.yaml").is_file():
+            return ()  # a run stopped before it wrote anything but run.json: nothing was done with any config
+        saved, what = load_config(run_dir / "config.yaml"), "the run was started"
+    else:
+        saved = config_from_dict(ckpt.config, "the checkpoint's config")
+        what = "round 0 was trained" if ckpt.round_index == 0 else f"rounds 0..{ckpt.round_index} were trained"
+    changes = config_changes(saved, cfg)
+    refused = [f"{key} ({_show(old)} -> {_show(new)})" for key, old, new in changes if not resumable(key)]
+    if refused:
+        raise ConfigError(f"--resume cannot change {', '.join(refused[:4])}{' ...' if len(refused) > 4 else ''}: {what} "
+                          "so, and a resume must not change what the rounds done mean; start a new run (another "
+                          "--run-dir) for that")
+    return changes
 
 
 def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, address: str | None = None,
@@ -277,6 +373,9 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     ckpt_path = run_dir / "checkpoints" / LATEST
     if not resume:
         check_fresh(run_dir, root)  # before the leases create anything
+    else:  # before the leases create anything (a changed buffer.location's folder, say); again under them
+        _check_resume(cfg, run_dir, ckpt_path, resolve_identity(run_dir, root),
+                      load_checkpoint(ckpt_path) if ckpt_path.exists() else None)
     with ExitStack() as held:
         held.enter_context(Lease(run_dir, "gpl-dist train"))
         if not _same_location(root, run_dir):
@@ -288,17 +387,29 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
         else:
             identity = resolve_identity(run_dir, root)
         ckpt = load_checkpoint(ckpt_path) if resume and ckpt_path.exists() else None
+        changes: tuple[tuple[str, Any, Any], ...] = ()
         if resume:
-            check_resumable(cfg, run_dir, ckpt)
+            changes = _check_resume(cfg, run_dir, ckpt_path, identity, ckpt)
             if ckpt is not None and ckpt.round_index + 1 >= cfg.training.num_rounds:
-                check_checkpoint_run(ckpt, ckpt_path, identity.run_id, run_dir)
                 rebuild_metrics(run_dir, ckpt)
                 print(f"{run_dir} has finished {ckpt.round_index + 1} rounds (training.num_rounds is "
                       f"{cfg.training.num_rounds}): nothing to do", flush=True)
                 return TrainingResult(run_dir, tuple(RoundMetrics.from_dict(m) for m in ckpt.history))
             verify_for_resume(root, ckpt, run_dir, identity)
+            start_round = 0 if ckpt is None else ckpt.round_index + 1
+            for key, old, new in changes:
+                print(f"--resume changes {key} {_show(old)} -> {_show(new)} from round {start_round}", flush=True)
         return _train(cfg, run_dir, root, tasks, ckpt, identity, serial=serial, address=address, progress=progress,
-                      collector=collector)
+                      collector=collector, changes=changes)
+
+
+def _check_resume(cfg: RunConfig, run_dir: Path, ckpt_path: Path, identity: RunIdentity,
+                  ckpt: Checkpoint | None) -> tuple[tuple[str, Any, Any], ...]:
+    """``check_resumable``, after checking that ``ckpt`` is the run's (another run's checkpoint is
+    named as such, not by how its config differs); the changes the resume applies."""
+    if ckpt is not None:
+        check_checkpoint_run(ckpt, ckpt_path, identity.run_id, run_dir)
+    return check_resumable(cfg, run_dir, ckpt)
 
 
 def _same_location(a: str | Path, b: str | Path) -> bool:
@@ -323,7 +434,8 @@ def rebuild_metrics(run_dir: Path, ckpt: Checkpoint) -> None:
 
 
 def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckpt: Checkpoint | None,
-           identity: RunIdentity, *, serial: bool, address: str | None, progress: bool, collector) -> TrainingResult:
+           identity: RunIdentity, *, serial: bool, address: str | None, progress: bool, collector,
+           changes: tuple[tuple[str, Any, Any], ...] = ()) -> TrainingResult:
     torch.manual_seed(cfg.seed)
     np.random.seed(cfg.seed % (2**32))
     model = build_model_from_config(get_domain(cfg.env.domain), cfg.model, seed=cfg.seed)
@@ -342,7 +454,7 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
             rebuild_metrics(run_dir, ckpt)
             log.info("resuming %s at round %d", run_dir, start_round)
         return _train_rounds(cfg, run_dir, root, tasks, learner, model.uses_corrections, collector, start_round, history,
-                             progress, identity.run_id)
+                             progress, identity.run_id, changes)
     finally:
         if learner is not None:
             learner.close()
@@ -370,18 +482,24 @@ def _make_learner(cfg: RunConfig, model, on_ray: bool):
 
 def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], learner, uses_corrections: bool,
                   collector,
-                  start_round: int, history: list[RoundMetrics], progress: bool, run_id: str) -> TrainingResult:
+                  start_round: int, history: list[RoundMetrics], progress: bool, run_id: str,
+                  changes: tuple[tuple[str, Any, Any], ...] = ()) -> TrainingResult:
     domain = get_domain(cfg.env.domain)
     ckpt_dir = run_dir / "checkpoints"
     tb = None
     try:
-        save_config(cfg, run_dir / "config.yaml")
+        if not (run_dir / "config.yaml").exists():  # the run as created: a resume never rewrites it
+            first = _first_config(ckpt_dir) if start_round else cfg  # (lost with trained rounds: round 0's)
+            if first is not None:
+                save_config(first, run_dir / "config.yaml")
         mark_buffer(root, run_id, replace=not committed_rounds(root))
         round_loop = _RoundLoop(cfg, domain, tasks, learner, uses_corrections, collector, root,
                                 _Progress(progress))
         tb = _tensorboard(run_dir)
         for r in range(start_round, cfg.training.num_rounds):
             metrics = round_loop.run(r)
+            if r == start_round and changes:
+                metrics = dataclasses.replace(metrics, config_changes=changes)
             history.append(metrics)
             state = learner.state()
             save_checkpoint(ckpt_dir, Checkpoint(
@@ -397,13 +515,22 @@ def _train_rounds(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ..
     return TrainingResult(run_dir, tuple(history))
 
 
+def _first_config(ckpt_dir: Path) -> RunConfig | None:
+    """The config round 0 used (``round-000000.pt``'s), or None without a readable one."""
+    try:
+        return config_from_dict(load_checkpoint(ckpt_dir / "round-000000.pt").config, "round 0's checkpoint")
+    except UserError:
+        return None
+
+
 def _make_collector(cfg: RunConfig, settings: RolloutSettings, root: str, run_id: str, *, serial: bool,
                     address: str | None):
     if serial:
         return SerialCollector(cfg.env.domain, settings, root, run_id)
     from workers.ray_collector import RayCollector  # Ray is imported only where a run uses it
-    return RayCollector(cfg.env.domain, settings, root, run_id, cfg.collection.num_workers, address,
-                        cfg.collection.max_unit_retries, cfg.collection.unit_timeout_s)
+    c = cfg.collection
+    return RayCollector(cfg.env.domain, settings, root, run_id, c.num_workers, address, c.max_unit_retries,
+                        c.unit_timeout_s, c.unit_timeout_floor_s, c.unit_timeout_multiple)
 
 
 class _RoundLoop:

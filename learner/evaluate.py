@@ -17,13 +17,13 @@ import copy
 import dataclasses
 import json
 import os
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from gpl_dist.atomic import savefig_atomic, write_atomic  # noqa: F401  (write_atomic: swap.py's too)
 from gpl_dist.config import MAX_CORRECTIONS, ConfigError, RunConfig, config_from_dict, load_config
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
@@ -36,7 +36,7 @@ from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks, valid_split
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
-from learner.identity import read_identity, resolve_identity
+from learner.identity import read_identity, resolve_identity, why_not_recorded_run
 from workers.rollout import Rollout
 
 
@@ -108,8 +108,10 @@ class EvalResult:
 
 def why_foreign(run_dir: str | Path, ckpt: Checkpoint, ckpt_file: str | Path) -> str | None:
     """Why ``ckpt`` (read from ``ckpt_file``) is not a checkpoint of the run in ``run_dir``, in
-    words; None when it is one: the same run identity (when both record one), and the same domain,
-    model and seed as the run's ``config.yaml``."""
+    words; None when it is one: the same run identity (``run.json``'s; for a run without one, what
+    its buffer's marker, other checkpoints, evaluation files and metrics record:
+    ``learner.identity.why_not_recorded_run``), and the same domain, model and seed as the run's
+    ``config.yaml``."""
     run_dir = Path(run_dir)
     identity = read_identity(run_dir)
     if identity is not None and ckpt.run_id is not None and ckpt.run_id != identity.run_id:
@@ -122,6 +124,10 @@ def why_foreign(run_dir: str | Path, ckpt: Checkpoint, ckpt_file: str | Path) ->
         theirs = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
     except ConfigError as err:
         return f"cannot compare {ckpt_file} with {run_dir}: {err}"
+    if identity is None:
+        why = why_not_recorded_run(run_dir, ckpt, ckpt_file, own.buffer.location or str(run_dir / "buffer"))
+        if why is not None:
+            return why
     differ = [f"env.domain {theirs.env.domain} (the run: {own.env.domain})"] if theirs.env.domain != own.env.domain else []
     differ += [f"model.{f.name} {getattr(theirs.model, f.name)} (the run: {getattr(own.model, f.name)})"
                for f in dataclasses.fields(own.model) if getattr(theirs.model, f.name) != getattr(own.model, f.name)]
@@ -294,7 +300,7 @@ def plot(domain: str, result: EvalResult, path: Path, title: str, with_paper: bo
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
-    fig.savefig(path)
+    savefig_atomic(fig, path)
     plt.close(fig)
 
 
@@ -310,14 +316,6 @@ def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: in
             f"{phrasings}-phrasings" if phrasings != e.phrasings else "",
             "swapped-instructions" if swap_instructions else ""]
     return "-".join(["eval", *(t for t in tags if t)])
-
-
-def write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary name beside it: a reader (or a second process
-    writing the same file) never sees half a file."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_ident()}")
-    tmp.write_bytes(data)
-    tmp.replace(path)
 
 
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
@@ -390,11 +388,9 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                "paper_completion": {str(k2): v for k2, v in get_domain(cfg.env.domain).paper_completion.items()},
                "reduced_scale": reduced_scale(cfg)}
     path = target / f"{stem}.json"
-    png = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{threading.get_ident()}.png")
     told = ", told other tasks' instructions" if swap_instructions else ""
-    plot(cfg.env.domain, result, png,
+    plot(cfg.env.domain, result, path.with_suffix(".png"),  # written whole or not at all (savefig_atomic)
          f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}{told}",
          with_paper=payload["reduced_scale"] is None and not swap_instructions)
-    png.replace(path.with_suffix(".png"))
     write_atomic(path, (json.dumps(payload, indent=1) + "\n").encode())
     return result, path

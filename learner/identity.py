@@ -6,6 +6,17 @@ checkpoint and in every evaluation file, so that ``verify``, ``train --resume``,
 
 A run created before identities existed has no ``run.json``: it is *legacy*, and its id is the one
 its buffer's marker and manifests record (its dir's name), so it keeps working as it was.
+
+A checkpoint is of a run without ``run.json`` (a legacy run, or one copied without it) when nothing
+the run's own files record says otherwise (``why_not_recorded_run``, which ``eval``, ``teach``,
+``serve`` and ``render`` ask before they use it or write into the run): the run id of its buffer's
+marker, as ``verify`` checks it; without a buffer (a run restored from an archive carries none),
+the one run id its other checkpoints and evaluation files record; and in every case the training
+history, which each checkpoint carries and ``metrics.jsonl`` repeats line for line, so that even a
+checkpoint or a run from before run ids is told from another run of the same domain, model and seed
+(every round's wall times differ). A run dir whose files record no id and no round (no buffer
+marker, checkpoint, evaluation file or ``metrics.jsonl``) has nothing to check against: only its
+config (domain, model, seed) is compared.
 """
 
 from __future__ import annotations
@@ -18,7 +29,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from gpl_dist.errors import CheckpointError, RunDirError
-from learner.checkpoint import load_checkpoint
+from learner.checkpoint import Checkpoint, load_checkpoint
 from storage.manifest import buffer_run_id
 
 #: The run's identity file, written once when the run is created.
@@ -99,3 +110,128 @@ def checkpoint_problems(run_dir: str | os.PathLike, run_id: str) -> list[tuple[s
         if ckpt.run_id is not None and ckpt.run_id != run_id:
             problems.append((str(path), f"a checkpoint of run {ckpt.run_id[:64]}, not of this run {run_id[:64]}"))
     return problems
+
+
+def config_problems(run_dir: str | os.PathLike) -> list[tuple[str, str]]:
+    """``(path, what)`` when ``RUN_DIR/config.yaml`` is not the config the run was made with: its
+    latest checkpoint holds the config its last round used, which is ``config.yaml`` with every
+    ``--resume`` change that ``metrics.jsonl`` records up to that round (``learner.driver``). Read
+    as data: no plug-in is imported. [] for a run without both files."""
+    from gpl_dist.config import load_yaml_text
+
+    run_dir = Path(run_dir)
+    path, latest = run_dir / "config.yaml", run_dir / "checkpoints" / "latest.pt"
+    if not path.is_file() or not latest.is_file():
+        return []
+    try:
+        saved = load_yaml_text(path.read_text(), path)
+        ckpt = load_checkpoint(latest)
+    except (OSError, UnicodeDecodeError, RunDirError, CheckpointError, ValueError) as err:
+        return [(str(path), f"cannot be checked against {latest.name} ({' '.join(str(err).split())[:200]})")]
+    expected = _flat(saved if isinstance(saved, dict) else {})
+    for r, row in sorted(_metrics_rows(run_dir).items()):
+        changes = row.get("config_changes")
+        if r <= ckpt.round_index and isinstance(changes, dict):
+            expected.update({k: v[1] for k, v in changes.items() if isinstance(v, list) and len(v) == 2})
+    held = _flat(ckpt.config if isinstance(ckpt.config, dict) else {})
+    differ = sorted(k for k in set(expected) | set(held) if expected.get(k) != held.get(k))
+    if not differ:
+        return []
+    key = differ[0]
+    return [(str(path), f"says {key}: {str(expected.get(key))[:80]}, but the run's latest round was trained with "
+                        f"{str(held.get(key))[:80]} ({len(differ)} key(s) differ; a resume's changes are recorded in "
+                        "metrics.jsonl, never in config.yaml): the file was edited after the run wrote it")]
+
+
+def _flat(tree: dict, prefix: str = "") -> dict:
+    out: dict = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = list(value) if isinstance(value, tuple) else value
+    return out
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def recorded_run_ids(run_dir: str | os.PathLike, besides: str | os.PathLike | None = None) -> set[str]:
+    """The run ids that the checkpoints under ``RUN_DIR/checkpoints`` (all but ``besides``) and the
+    evaluation files ``RUN_DIR/eval*.json`` record (unreadable ones are ``verify``'s to name)."""
+    run_dir = Path(run_dir)
+    ids: set[str] = set()
+    for path in sorted((run_dir / "checkpoints").glob("*.pt")):
+        if besides is not None and _same_file(path, Path(besides)):
+            continue
+        try:
+            run_id = load_checkpoint(path).run_id
+        except CheckpointError:
+            continue
+        if run_id is not None:
+            ids.add(run_id)
+    for path in sorted(run_dir.glob("eval*.json")):
+        try:
+            raw = json.loads(path.read_text()[:1 << 24])
+        except (OSError, UnicodeDecodeError, ValueError):
+            continue
+        if isinstance(raw, dict) and isinstance(raw.get("run_id"), str):
+            ids.add(raw["run_id"])
+    return ids
+
+
+def _metrics_rows(run_dir: Path) -> dict[int, dict]:
+    """The last ``metrics.jsonl`` line of each round (lines that do not parse are left out)."""
+    rows: dict[int, dict] = {}
+    try:
+        text = (run_dir / "metrics.jsonl").read_text()
+    except (OSError, UnicodeDecodeError):
+        return rows
+    for line in text.splitlines():
+        try:
+            row = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(row, dict) and isinstance(row.get("round"), int):
+            rows[row["round"]] = row
+    return rows
+
+
+def _canonical(row: dict) -> str:
+    """A metrics row as JSON with sorted keys (NaN equals NaN there, as it does in the file)."""
+    try:
+        return json.dumps(row, sort_keys=True)
+    except (TypeError, ValueError):
+        return repr(row)
+
+
+def why_not_recorded_run(run_dir: str | os.PathLike, ckpt: Checkpoint, ckpt_file: str | os.PathLike,
+                         buffer_root: str) -> str | None:
+    """Why ``ckpt`` (read from ``ckpt_file``) is not a checkpoint of the run in ``run_dir``, which has
+    no ``run.json``, by what the run's own files record (module docstring), in one line; None when
+    they record nothing against it."""
+    run_dir = Path(run_dir)
+    marked = buffer_run_id(buffer_root)
+    if ckpt.run_id is not None:
+        if marked is not None:
+            ids, where = {marked}, "its buffer's marker records"
+        else:
+            ids, where = recorded_run_ids(run_dir, besides=ckpt_file), "its other checkpoints and evaluation files record"
+        if len(ids) > 1:
+            named = ", ".join(describe(i) for i in sorted(ids)[:3])
+            return (f"{run_dir} has no run.json and {where.replace(' record', '')} name {len(ids)} runs ({named}): "
+                    f"there is no telling whether {ckpt_file} (run {describe(ckpt.run_id)}) is its checkpoint")
+        if ids and ckpt.run_id not in ids:
+            return (f"{ckpt_file} is a checkpoint of run {describe(ckpt.run_id)}, not of {run_dir} (run "
+                    f"{describe(next(iter(ids)))}, as {where}; it has no run.json)")
+    rows = _metrics_rows(run_dir)
+    for theirs in ckpt.history:
+        r = theirs.get("round") if isinstance(theirs, dict) else None
+        if r in rows and _canonical(rows[r]) != _canonical(theirs):
+            return (f"{ckpt_file} is not a checkpoint of {run_dir}: its record of round {r} differs from "
+                    f"{run_dir / 'metrics.jsonl'}'s (the run has no run.json; its training history tells it apart)")
+    return None

@@ -199,7 +199,8 @@ class Learner:
     def load_optimizer_state(self, state: dict) -> None:
         """Adam's moments from a checkpoint (also one written with one entry per parameter tensor,
         before the parameters were flattened: exact when every tensor has taken the same number
-        of steps, as they do in gpl-dist's rounds), keeping this learner's fused setting."""
+        of steps, as they do in gpl-dist's rounds), keeping this learner's fused setting and its
+        config's learning rate (``training.learning_rate``, which a resume may change)."""
         # a copy: load_state_dict keeps the given tensors, so two learners loading one in-memory
         # state would update the same moments twice (a checkpoint read from disk is private anyway)
         state = copy.deepcopy(state)
@@ -216,6 +217,9 @@ class Learner:
         self.optimizer.load_state_dict(state)
         for group in self.optimizer.param_groups:
             group["fused"], group["foreach"] = True, None
+            # the run's learning rate, not the one saved with the moments: a --resume that changes
+            # training.learning_rate applies it from the next round (learner.driver, RESUMABLE)
+            group["lr"] = self.cfg.learning_rate
 
     def state(self) -> LearnerState:
         """Model, Adam and batch-generator state (``gpl_dist.roles.Learner``); the tensors are this

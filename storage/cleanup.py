@@ -3,8 +3,9 @@
 Acts only on a gpl-dist buffer (a root that a driver marked, or that holds committed manifests),
 only while no driver holds it (``clean`` takes the buffer's lease for its duration, so no run can
 start meanwhile either), and never on committed data: it removes staging tries and ``_tmp-``
-files, nothing under ``data/``. Data under ``data/`` that no manifest lists (a deleted manifest)
-is reported by ``gpl-dist verify``, not removed.
+files, nothing under ``data/``. A symbolic link anywhere it would look (a run dir copied or moved
+with links in it) makes it refuse in one line, before anything is removed. Data under ``data/``
+that no manifest lists (a deleted manifest) is reported by ``gpl-dist verify``, not removed.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import time
 
 from gpl_dist.errors import RunDirError
 from storage.commit import load_journal, pending_journals, recover_pending
-from storage.fs import Location, resolve
+from storage.fs import Location, link_error, resolve
 from storage.layout import BUFFER_MARKER, MANIFESTS, STAGING, TMP_PREFIX, parse_round_dir
 from storage.lease import Lease, lease_holder
 from storage.manifest import committed_rounds, is_buffer
@@ -33,6 +34,7 @@ def clean_leftovers(root: "str | os.PathLike[str] | Location", dry_run: bool = F
     loc = resolve(root)
     if not is_buffer(loc):
         raise RunDirError(f"{loc.url} is not a gpl-dist buffer (no {BUFFER_MARKER}, no committed manifest); nothing removed")
+    _refuse_links(loc)
     if dry_run:
         holder = lease_holder(loc)
         if holder is not None:
@@ -45,6 +47,16 @@ def clean_leftovers(root: "str | os.PathLike[str] | Location", dry_run: bool = F
             loc.remove(rel)
         loc.remove_empty_dirs(STAGING)
     return out
+
+
+def _refuse_links(loc: Location) -> None:
+    """``LinkError`` naming the first symbolic link where ``clean`` would list or remove (staging,
+    manifests): nothing is removed through a link, nor the link itself."""
+    links = [link for top in (STAGING, MANIFESTS) for link in loc.links(top)]
+    if links:
+        more = f" (and {len(links) - 1} more)" if len(links) > 1 else ""
+        err = link_error(loc, links[0])
+        raise type(err)(f"{err}{more}; nothing removed", links[0])
 
 
 def _pending_files(loc: Location) -> set[str]:

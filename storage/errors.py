@@ -14,3 +14,8 @@ class BufferIntegrityError(UserError, RuntimeError):
     def __init__(self, message: str, path: str | None = None) -> None:
         super().__init__(message)
         self.path = path
+
+
+class LinkError(BufferIntegrityError):
+    """A path inside a run passes through a symbolic link: refused, never followed (the message
+    names the link and its target)."""

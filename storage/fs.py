@@ -1,7 +1,10 @@
 """One run root on a local disk or any fsspec location (``memory://run``, ``s3://bucket/run``).
 
 Everything in ``storage`` goes through :class:`Location`, which holds an fsspec filesystem and the
-root path inside it, and speaks in paths relative to the root. Bytes are written under a temporary
+root path inside it, and speaks in paths relative to the root. On a local disk no path below the
+root may pass through a symbolic link: every path is checked (``LinkError`` names the link), walks
+list a link as an entry and never descend into it, and nothing is ever removed or moved through
+one. A run dir copied from someone else cannot make a command touch files outside it. Bytes are written under a temporary
 name starting with ``_tmp-`` (ignored by pyarrow datasets) and then renamed into place. On a local
 disk that rename is ``os.replace`` (atomic); on object stores a "rename" is copy + delete, which is
 why the round manifest, written last, is the commit point.
@@ -12,9 +15,9 @@ from __future__ import annotations
 import hashlib
 import os
 import posixpath
+import stat
 import uuid
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Iterable
 
 import fsspec
@@ -50,7 +53,43 @@ class Location:
             from storage.errors import BufferIntegrityError
 
             raise BufferIntegrityError(f"{rel[:200]!r} is not a path inside {self.url}", rel)
+        if self.is_local:
+            link = self._first_link(rel)
+            if link is not None:
+                raise link_error(self, link)
         return posixpath.join(self.root, rel)
+
+    def _first_link(self, rel: str) -> str | None:
+        """The first component of ``rel`` (below the root) that is a symbolic link, as a relative path."""
+        p = self.root
+        for part in rel.split("/"):
+            if not part or part == ".":
+                continue
+            p = os.path.join(p, part)
+            try:
+                mode = os.lstat(p).st_mode
+            except OSError:  # absent (or under a file): nothing further down exists either
+                return None
+            if stat.S_ISLNK(mode):
+                return self.rel(p)
+        return None
+
+    def links(self, rel: str = "") -> list[str]:
+        """Relative paths of the symbolic links at or under ``rel``, never following one; [] on an
+        object store (which has none)."""
+        if not self.is_local:
+            return []
+        link = self._first_link(rel)
+        if link is not None:
+            return [link]
+        top = self.path(rel)
+        out = []
+        for dirpath, dirnames, filenames in os.walk(top, followlinks=False):
+            for name in (*dirnames, *filenames):
+                full = os.path.join(dirpath, name)
+                if os.path.islink(full):
+                    out.append(self.rel(full))
+        return sorted(out)
 
     def rel(self, path: str) -> str:
         path = path.rstrip("/")
@@ -93,6 +132,12 @@ class Location:
             return []
         if not self.fs.isdir(p):
             return [rel]
+        if self.is_local:  # fsspec's local find descends into linked folders; os.walk does not
+            out: list[str] = []
+            for dirpath, dirnames, filenames in os.walk(p, followlinks=False):
+                out.extend(os.path.join(dirpath, d) for d in dirnames if os.path.islink(os.path.join(dirpath, d)))
+                out.extend(os.path.join(dirpath, f) for f in filenames)
+            return sorted(self.rel(f) for f in out)
         return sorted(self.rel(f) for f in self.fs.find(p))
 
     def mtime(self, rel: str) -> float | None:
@@ -141,14 +186,18 @@ class Location:
         """Remove empty directories under ``rel`` (bottom-up), keeping ``rel`` itself."""
         if not self.is_local:
             return  # object stores have no empty directories worth removing
-        top = Path(self.path(rel))
-        if not top.is_dir():
+        top = self.path(rel)
+        if not os.path.isdir(top):
             return
-        for d in sorted((p for p in top.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True):
-            try:
-                d.rmdir()
-            except OSError:
-                pass
+        for dirpath, dirnames, _ in os.walk(top, topdown=False, followlinks=False):
+            for name in dirnames:
+                d = os.path.join(dirpath, name)
+                if os.path.islink(d):
+                    continue  # a link is never removed, nor what it points at
+                try:
+                    os.rmdir(d)
+                except OSError:
+                    pass
 
     def du(self, rels: Iterable[str] = ("",)) -> int:
         total = 0
@@ -157,6 +206,18 @@ class Location:
             if self.fs.exists(p):
                 total += int(self.fs.du(p, total=True))
         return total
+
+
+def link_error(loc: Location, rel: str) -> Exception:
+    """The one-line ``LinkError`` for the symbolic link ``rel`` under ``loc``."""
+    from storage.errors import LinkError
+
+    try:
+        target = os.readlink(posixpath.join(loc.root, rel))
+    except OSError:
+        target = "?"
+    return LinkError(f"{rel} in {loc.url} is a symbolic link (to {target[:200]}); gpl-dist never follows a link "
+                     "inside a run: replace it with the real files, or remove it", rel)
 
 
 def resolve(root: "str | os.PathLike[str] | Location") -> Location:

@@ -8,6 +8,8 @@ What is checked, and reported per file (``gpl-dist verify``, ``gpl-dist inspect`
 * no round is missing below the newest committed one, unless it was quarantined;
 * no data under ``data/`` belongs to a round without a manifest, or is unlisted in its round's
   manifest (a deleted manifest would otherwise drop its round silently);
+* nothing in the buffer is a symbolic link (each one is named; none is followed, and checking stops
+  at the first path that would pass through one);
 * every manifest and every shard record in it names the buffer's own run (the run id of its marker
   ``_gpl-dist-buffer.json``, or the one the caller expects): a round copied in from another run is
   refused, naming both runs.
@@ -31,8 +33,8 @@ from datetime import datetime, timezone
 
 from gpl_dist.faults import fault_point
 from storage.commit import load_journal, pending_journals
-from storage.errors import BufferIntegrityError
-from storage.fs import Location, resolve, sha256_hex
+from storage.errors import BufferIntegrityError, LinkError
+from storage.fs import Location, link_error, resolve, sha256_hex
 from storage.layout import (
     BUFFER_MARKER,
     DATA,
@@ -61,7 +63,7 @@ class Problem:
     Kinds: ``manifest`` (unreadable), ``file`` (a listed file missing, resized or changed),
     ``unlisted`` (data under ``data/`` that no manifest lists, or of a round without one),
     ``gap`` (a round below the newest is missing), ``journal`` (a damaged commit journal),
-    ``foreign`` (a round or shard of another run than the buffer's).
+    ``foreign`` (a round or shard of another run than the buffer's), ``link`` (a symbolic link).
     """
 
     path: str
@@ -129,6 +131,9 @@ def _check_files(loc: Location, m: RoundManifest, checksums: bool) -> tuple[list
                 size = len(data) if data is not None else loc.size(f.path)
             except FileNotFoundError:
                 problems.append(Problem(f.path, m.round_index, "file", "missing"))
+                continue
+            except LinkError as err:
+                problems.append(Problem(f.path, m.round_index, "file", f"passes through the symbolic link {err.path}"))
                 continue
             except BufferIntegrityError:  # the manifest names a path outside the root
                 problems.append(Problem(f.path, m.round_index, "file", "is not a path inside the buffer"))
@@ -206,7 +211,11 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
     the run its rounds must belong to (default: its marker's; a buffer without one, made before
     markers existed, is held to its first manifest's)."""
     loc = resolve(root)
-    problems: list[Problem] = []
+    problems: list[Problem] = [_link_problem(loc, link) for link in loc.links()]
+    if problems:  # named each; checking on would only meet them again
+        problems.sort(key=lambda p: (p.round_index if p.round_index is not None else -1, p.path))
+        return VerifyReport(root=loc.url, rounds=(), quarantined=(), in_progress=(), num_files=0, num_bytes=0,
+                            checksums=checksums, problems=tuple(problems), run_id=run_id)
     rounds: list[int] = []
     listed: set[str] = set()
     files = nbytes = 0
@@ -273,6 +282,15 @@ def verify_buffer(root: "str | os.PathLike[str] | Location", checksums: bool = T
     return VerifyReport(root=loc.url, rounds=tuple(sorted(rounds)), quarantined=quarantined,
                         in_progress=tuple(sorted(in_progress)), num_files=files, num_bytes=nbytes, checksums=checksums,
                         problems=tuple(problems), run_id=expected)
+
+
+def _link_problem(loc: Location, link: str) -> Problem:
+    rounds = [r for r in map(parse_round_dir, link.split("/")) if r is not None]
+    if not rounds and link.startswith(f"{MANIFESTS}/"):
+        name = link.split("/")[1]
+        rounds = [r for r in (parse_manifest_name(name), parse_pending_name(name)) if r is not None]
+    message = str(link_error(loc, link)).split(f" in {loc.url} ", 1)[-1]
+    return Problem(link, rounds[0] if rounds else None, "link", message)
 
 
 def quarantine_round(root: "str | os.PathLike[str] | Location", round_index: int) -> list[str]:

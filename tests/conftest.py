@@ -38,3 +38,5 @@ def _single_torch_thread():
 
 
 os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+# The plug-in files this test session trains from are trusted in a file of its own, never the user's.
+os.environ["GPL_DIST_TRUST_FILE"] = os.path.join(tempfile.mkdtemp(prefix="gpltrust-"), "trusted-domain-modules.json")

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from gpl_dist.app.suite.report import PAPER_TABLES, collect_results
+from gpl_dist.app.suite.report import collect_results
 from gpl_dist.app.suite.runner import run_suite
 from gpl_dist.app.suite.runs import run_state
 from gpl_dist.app.suite.spec import load_suite, plan
@@ -130,6 +130,13 @@ def test_a_run_made_by_another_version_of_its_entry_is_refused(tmp_path, capsys)
 
 
 def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_path):
+    """Tiny real runs of three of the paper's entries: under their own suite file (three entries)
+    the report is that suite's, with its rows and none of the paper's; under the paper's suite file
+    (its copy in OUT) it holds every row of the paper's tables, each cell from the eval files."""
+    import shutil
+
+    from gpl_dist.app.suite.report_paper import load_paper
+
     evaluations = {"test": {"split": "test", "seeds": [0, 1], "num_corrections": 5, "greedy_actions": False, "max_tasks": 3},
                    "test-c10": {"split": "test", "seeds": [0], "num_corrections": 10, "greedy_actions": False, "max_tasks": 2}}
     path = write_suite(tmp_path / "suite.yaml", {
@@ -139,29 +146,46 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     out = tmp_path / "out"
     run_suite(load_suite(path), out, only=("multiroom-gpl", "multiroom-instruction"), seeds=(0, 1), serial=True,
               progress=False)
+    # GPL's c1 cell is the mean over training seeds of each run's eval.json completion, ± its 95 % t
+    # interval's half-width (t(0.975, 1) = 12.706)
+    per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
+    mean, half = statistics.fmean(per_seed), 12.7062047 * statistics.stdev(per_seed) / 2 ** 0.5
+    assert main(["suite", "report", str(out), "--out", str(tmp_path / "own")]) == 0
+    own = (tmp_path / "own" / "report.md").read_text()
+    assert own.startswith("# The suite's experiments\n") and "## Table 1" not in own and "| GPL |" not in own
+    test = own.split("## Evaluation 'test': every entry\n", 1)[1].split("\n## ", 1)[0]
+    own_row = next(line for line in test.splitlines() if line.startswith("| multiroom-gpl |"))
+    assert own_row.startswith("| multiroom-gpl | multiroom | 1 |") and f"| {mean:.3f} ± {half:.3f} |" in own_row
+    assert own_row.endswith("| 2 training seed(s): 0, 1; not run yet: 2 |")  # the suite file's seed 2 is missing
+    assert next(line for line in test.splitlines() if line.startswith("| multiroom-no-trajectory |")).endswith(
+        "| not run yet |")
+    assert "## Evaluation 'test-c10': every entry" in own
+    # the same runs under the paper's suite file: the paper's tables
+    shutil.copyfile(REPO / "configs" / "suites" / "paper.yaml", out / "suite.yaml")
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "report")]) == 0
     md = (tmp_path / "report" / "report.md").read_text()
-    for table in PAPER_TABLES:
+    assert md.startswith("# The paper's experiments, reproduced\n") and "## Evaluation 'test'" not in md
+    paper = load_paper()
+    assert paper is not None
+    for table in paper.tables:
         for row in table.rows:
             assert f"| {row.label} |" in md
-    # GPL's c1 cell is the mean over training seeds of each run's eval.json completion, ± its 95 % t
-    # interval's half-width (t(0.975, 1) = 12.706), and where the paper's 0.46 lies against it
-    per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
+    # beside it, where the paper's 0.46 lies against its interval
     gpl_row = next(line for line in md.splitlines() if line.startswith("| GPL |"))
-    mean, half = statistics.fmean(per_seed), 12.7062047 * statistics.stdev(per_seed) / 2 ** 0.5
     where = "" if mean - half <= 0.46 <= mean + half else f"; ours {'above' if mean - half > 0.46 else 'below'}"
     assert f"{mean:.3f} ± {half:.3f} (0.46{where})" in gpl_row
     for section in ("## Comparisons", "## Budgets", "## Learning curves", "## Run health", "## Per training seed"):
         assert section in md
     health = md.split("## Run health", 1)[1].split("\n## ", 1)[0]
     assert "`runs/multiroom-gpl/seed0`" in health and "3 runs; 0 not valid" in health
-    assert gpl_row.endswith("| 2 training seed(s): 0, 1; not run yet: 2 |")  # the suite file's seed 2 is missing
+    assert gpl_row.endswith("| 2 training seed(s): 0, 1; not run yet: 2, 3, 4 |")  # the paper's seeds 2-4 are missing
     assert "not in the paper either" in md and "| No trajectory |" in md
     no_trajectory_row = next(line for line in md.splitlines() if line.startswith("| No trajectory |"))
     assert no_trajectory_row.endswith("| not run yet |")
     not_run = md.split("## Not run yet", 1)[1].split("\n## ", 1)[0]  # every run of the suite file not reported, only those
-    assert [line for line in not_run.splitlines() if line.startswith("- ")] == [
-        "- `multiroom-gpl`: training seed(s) 2", "- `multiroom-no-trajectory`: training seed(s) 0"]
+    listed = [line for line in not_run.splitlines() if line.startswith("- ")]
+    assert "- `multiroom-gpl`: training seed(s) 2, 3, 4" in listed and len(listed) == len(paper.entries)
+    assert "- `multiroom-no-trajectory`: training seed(s) 0, 1, 2, 3, 4" in listed
     effort = json.loads((out / "multiroom-gpl" / "seed0" / "eval.json").read_text())["correction_effort"]
     effort_md = md.split("## Correction effort", 1)[1].split("\n## ", 1)[0]
     effort_row = next(line for line in effort_md.splitlines() if line.startswith("| multiroom-gpl |"))
@@ -173,7 +197,7 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
                                                           ("multiroom-instruction", "test")}
     html = (tmp_path / "report" / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 4 and "<table>" in html
-    assert "<li>multiroom-no-trajectory: training seed(s) 0</li>" in html
+    assert "<li>multiroom-no-trajectory: training seed(s) 0, 1, 2, 3, 4</li>" in html
     assert (tmp_path / "report" / "table2.png").stat().st_size > 1000
 
 
@@ -257,7 +281,10 @@ def test_the_report_archives_its_runs_so_a_lost_run_folder_loses_no_row_and_rest
         "checkpoints/latest.pt", "config.yaml", "curve-valid.json", "eval.json", "metrics.jsonl", "run.json",
         "suite-run.json"]
     assert "multiroom-gpl/seed1/eval.json" in json.loads((report / "runs" / "checksums.json").read_text())["files"]
-    gpl_row = next(line for line in (report / "report.md").read_text().splitlines() if line.startswith("| GPL |"))
+    # the suite's own table (its entries are not all the paper's): the row of multiroom-gpl
+    gpl_row = next(line for line in (report / "report.md").read_text().splitlines()
+                   if line.startswith("| multiroom-gpl | multiroom | 1 |"))
+    assert gpl_row.endswith("| 2 training seed(s): 0, 1 |")
     assert "| `runs/multiroom-gpl/seed1` |" in (report / "report.md").read_text()
 
     # the first run folder is lost; another one trains only the instruction-only entry
@@ -268,7 +295,7 @@ def test_the_report_archives_its_runs_so_a_lost_run_folder_loses_no_row_and_rest
     run_suite(suite, second, serial=True, progress=False, only=("multiroom-instruction",))
     assert main(["suite", "report", str(second), "--out", str(report)]) == 0
     md = (report / "report.md").read_text()
-    assert next(line for line in md.splitlines() if line.startswith("| GPL |")) == gpl_row
+    assert next(line for line in md.splitlines() if line.startswith("| multiroom-gpl | multiroom | 1 |")) == gpl_row
     assert "| `runs/multiroom-instruction/seed0` |" in md
 
     # restore into the second folder: the archived runs are done there, nothing trains again
@@ -390,7 +417,8 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     import shutil
 
     from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
-    from gpl_dist.app.suite.report import plateau_markdown
+    from gpl_dist.app.suite.report_controls import plateau_table
+    from gpl_dist.app.suite.report_data import run_curves
     from gpl_dist.app.suite.rundata import CURVE_FILE, learning_curve
     from gpl_dist.splits import split_tasks
 
@@ -417,10 +445,13 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     assert learning_curve(run).valid and not learning_curve(run).off_split
     (run / CURVE_FILE).write_text(json.dumps({**curve, "settings": {**curve["settings"], "split": "valid"}}))
     assert learning_curve(run).valid == () and learning_curve(run).off_split == "valid"
-    table = plateau_markdown(collect_results(tmp_path, log=lambda _: None), {})
+    results = collect_results(tmp_path, log=lambda _: None)
+    table = plateau_table(results, {}, run_curves(results), {})
     assert "| multiroom-heldout-gpl |" not in table and "left out: `multiroom-heldout-gpl` seed0 (`valid`)" in table
-    # a training split without a valid split has no curve; a user's domain is registered from its module first
+    # a training split without a valid split has no curve; reading a run imports no domain module: a
+    # user's domain this process does not know keeps the split its curve measured, one it knows is checked
     from gpl_dist.config import load_config
+    from gpl_dist.domains import domain_names, load_domain_module, unregister_domain
 
     cfg = load_config(REPO / "configs" / "multiroom.yaml", {"env.train_split": "heldout_train"})
     assert CurveSettings().for_run(cfg) is None
@@ -430,6 +461,10 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     module = REPO / "tests" / "domains" / "corridor.py"
     (corridor / "config.yaml").write_text(f"env: {{domain: corridor, domain_module: {module}}}\n")
     (corridor / CURVE_FILE).write_text(json.dumps({**curve, "settings": {"split": "valid"}}))
+    unregister_domain("corridor")
+    assert learning_curve(corridor).valid and learning_curve(corridor).off_split == ""
+    assert "corridor" not in domain_names()  # reading it imported nothing
+    load_domain_module(str(module))
     assert learning_curve(corridor).off_split == "valid"  # corridor declares no valid split
 
 
@@ -458,7 +493,9 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     'flat'; a curve not computed to the run's last round is not read."""
     import shutil
 
-    from gpl_dist.app.suite.report import RunResult, plateau_markdown
+    from gpl_dist.app.suite.report import RunResult
+    from gpl_dist.app.suite.report_controls import plateau_table
+    from gpl_dist.app.suite.report_data import SuitePlan, run_curves, trained_longer
     from gpl_dist.app.suite.rundata import CURVE_FILE
 
     metrics = REPO / "docs" / "paper-report" / "runs" / "multiroom-full-info" / "seed0" / "metrics.jsonl"
@@ -485,8 +522,18 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     (short / CURVE_FILE).write_text(json.dumps({"settings": {"split": "valid"}, "rounds": [0, 1],
                                                 "completion": [[0.1], [0.9]]}))
     results.append(RunResult("short", 0, short, "test", (0.5,), short / "eval.json", (), (), 0.0, 0.0))
-    table = {line.split(" | ")[0].strip("| "): line for line in plateau_markdown(results, {"rising-long": (0,)}).splitlines()}
-    assert "still rising" in table["rising"] and "`rising-long` (not run yet)" in table["rising"]
+    # the entry trained longer: the same definition but more rounds (the suite file's), whatever its name
+    plan = SuitePlan({"rising": (0,), "rising-more": (0,)}, {}, {
+        "rising": ("base.yaml", {"model.variant": "gpl"}),
+        "rising-more": ("base.yaml", {"model.variant": "gpl", "training.num_rounds": rounds + 6}),
+        "shorter": ("base.yaml", {"model.variant": "gpl", "training.num_rounds": rounds - 1}),
+        "other": ("base.yaml", {"model.variant": "no_trajectory", "training.num_rounds": rounds + 6})})
+    longer = trained_longer(plan, {"rising": rounds, "flat": rounds})
+    assert longer == {"rising": ("rising-more",)}
+    curves = run_curves(results)
+    md = plateau_table(results, plan.seeds, curves, longer)
+    table = {line.split(" | ")[0].strip("| "): line for line in md.splitlines()}
+    assert "still rising" in table["rising"] and "`rising-more` (not run yet)" in table["rising"]
     assert "+0.104" in table["rising"]
     assert "| flat |" in table["flat"] and "| — |" in table["flat"]
     # a curve that peaked and fell shows its best rounds beside a 'flat' end
@@ -494,7 +541,6 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     assert f"| {', '.join([str(rounds - 1)] * 5)}: 0.604 |" in table["rising"]
     assert "short" not in table
     # a run without a curve to its last round is named as not checked, never silently dropped
-    md = plateau_markdown(results, {"rising-long": (0,)})
     assert md.splitlines()[-1].startswith("Runs without a valid curve") and "`short` 1 of 1" in md
     assert "`rising`" not in md.splitlines()[-1]
 

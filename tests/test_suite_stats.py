@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from gpl_dist.app.suite.report import (
-    PAPER_TABLES,
     RunResult,
     cell,
     comparisons_markdown,
@@ -16,6 +15,7 @@ from gpl_dist.app.suite.report import (
     table_markdown,
     wanted_runs,
 )
+from gpl_dist.app.suite.report_paper import load_paper
 from gpl_dist.app.suite.rundata import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
 from learner.driver import RoundMetrics
@@ -90,7 +90,7 @@ def test_a_run_dead_at_its_final_round_is_left_out_of_every_mean(tmp_path):
     assert [r.seed for r in kept] == [0, 1]
     c = cell(kept, "multiroom-gpl", "test", 1)
     assert c is not None and c.n == 2 and c.mean == pytest.approx(0.85)
-    table = next(t for t in PAPER_TABLES if t.key == "table1-multiroom")
+    table = next(t for t in load_paper().tables if t.key == "table1-multiroom")
     md = table_markdown(kept, table, {"multiroom-gpl": (0, 1, 2)}, [r for r in results if r not in kept])
     gpl_line = next(line for line in md.splitlines() if line.startswith("| GPL |"))
     assert "2 training seed(s): 0, 1" in gpl_line and "left out: 2" in gpl_line and "not run yet" not in gpl_line

@@ -51,7 +51,9 @@ def make_worker(domain_name: str, settings: RolloutSettings, buffer_root: str, r
 
 
 class SerialCollector:
-    """Collects every unit in this process, one after the other."""
+    """Collects every unit in this process, one after the other. It has no unit timeout (the
+    ``collection.unit_timeout_*`` settings are the Ray actors'): a unit that hangs here hangs the
+    driver itself, which Ctrl-C or SIGTERM ends (``train --resume`` goes on)."""
 
     def __init__(self, domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str):
         self.worker = make_worker(domain_name, settings, buffer_root, run_id, "serial-0")

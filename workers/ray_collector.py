@@ -13,9 +13,17 @@ A dead actor is not handed another unit until a cheap probe call (``node_id``) h
 actor whose node is gone may stay pending for a long time (no free CPU anywhere), and a unit queued
 behind it would stall the round, so the remaining actors take over its work meanwhile. A probe that
 fails (the actor died for good, e.g. its constructor raised) replaces the actor with a fresh one.
-A unit out for longer than ``unit_timeout_s`` without a result (its actor hung, or the call or its
-reply was lost while the actor looks alive) counts as a failed try: its actor is replaced and the
-unit handed out again, so a stuck round fails in one line instead of waiting without end.
+A unit out for longer than its timeout without a result (its actor hung, or the call or its reply
+was lost while the actor looks alive) counts as a failed try: its actor is replaced and the unit
+handed out again, so a hung actor costs the round minutes, and a stuck round fails in one line
+instead of waiting without end. The timeout adapts to the run (``unit_timeout``):
+``collection.unit_timeout_multiple`` (10) times the median time of the units that have come back
+so far in this driver's run, at least ``collection.unit_timeout_floor_s`` (60 s), at most
+``collection.unit_timeout_s`` (1800 s), which alone applies until a first unit has come back. A
+unit's clock starts when it is handed to an actor that has answered a probe, so an actor's start
+(seconds to a minute on loaded cores) is never part of a unit's time. While a unit is late (out for
+more than a quarter of its timeout) a line says so every quarter of its timeout (``stall_line``),
+so a stall is seen while it lasts, not only when it ends.
 A round fails (``RoundFailed``) when a unit failed more than ``max_unit_retries`` times, or when no
 actor has been usable for ``ACTOR_WAIT_S`` seconds.
 """
@@ -26,6 +34,7 @@ import logging
 import os
 import re
 import socket
+import statistics
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -183,13 +192,30 @@ def init_ray(address: str | None, num_workers: int, temp_dir: str | None = None,
         reclaim_sigterm()  # Ray's core worker replaced it with a handler that dumps a C++ stack and aborts
 
 
+def unit_timeout(durations: Sequence[float], floor_s: float, multiple: float, ceiling_s: float) -> float:
+    """Seconds a unit may be out without a result: ``multiple`` times the median of ``durations``
+    (the seconds of the units that came back so far), at least ``floor_s``, at most ``ceiling_s``;
+    ``ceiling_s`` while nothing came back (nothing says how long a unit takes yet)."""
+    if not durations:
+        return ceiling_s
+    return min(ceiling_s, max(floor_s, multiple * statistics.median(durations)))
+
+
+def stall_line(unit: WorkUnit, actor: int, waited_s: float, timeout_s: float) -> str:
+    """The line printed while a unit is late (see the module docstring)."""
+    return (f"unit {unit.unit_index} of round {unit.round_index} on actor {actor}: no result for {waited_s:.0f} s "
+            f"(timeout {timeout_s:.0f} s)")
+
+
 class RayCollector:
     """Runs ``num_workers`` rollout actors and hands each round's units out dynamically.
 
     Attributes (for logs and tests):
         unit_tries: failed tries per ``(round, unit)``.
         unit_nodes: node id of the actor whose try of ``(round, unit)`` was returned.
-        replaced_actors: actors replaced after a failed liveness probe.
+        replaced_actors: actors replaced after a failed liveness probe or a timeout.
+        unit_seconds: seconds each unit that came back was out, in the order they came back
+            (the adaptive timeout's record).
     """
 
     #: Seconds a round waits with no unit in flight and no live actor before it fails.
@@ -199,17 +225,25 @@ class RayCollector:
 
     def __init__(self, domain_name: str, settings: RolloutSettings, buffer_root: str, run_id: str,
                  num_workers: int, address: str | None = None, max_unit_retries: int = 3,
-                 unit_timeout_s: float = 1800.0):
+                 unit_timeout_s: float = 1800.0, unit_timeout_floor_s: float = 60.0,
+                 unit_timeout_multiple: float = 10.0):
         self._owns_ray = init_ray(address, num_workers)
         self.max_unit_retries = max_unit_retries
         self.unit_timeout_s = unit_timeout_s
+        self.unit_timeout_floor_s = unit_timeout_floor_s
+        self.unit_timeout_multiple = unit_timeout_multiple
         self._actor_args = (domain_name, settings, buffer_root, run_id)
-        self.actors = [self._new_actor(i) for i in range(num_workers)]
         self.unit_tries: dict[tuple[int, int], int] = {}
         self.unit_nodes: dict[tuple[int, int], str] = {}
+        self.unit_seconds: list[float] = []
+        self._timeout_s = unit_timeout_s  # unit_timeout() of unit_seconds, kept up to date
         self.replaced_actors = 0
-        # liveness probes of actors that died: probe ref -> actor index (carried across rounds)
+        # liveness probes: probe ref -> actor index (carried across rounds); every actor answers
+        # one before its first unit, so that no unit's clock includes the actor's start
         self._probes: dict = {}
+        self.actors = [self._new_actor(i) for i in range(num_workers)]
+        for i in range(num_workers):
+            self._probe(i)
 
     def _new_actor(self, i: int):
         # ray.remote made the class an ActorClass, which type checkers do not see
@@ -240,7 +274,7 @@ class RayCollector:
         while queue or inflight:
             while queue and idle:
                 i, unit = idle.pop(), queue.popleft()
-                inflight[self.actors[i].run_unit.remote(unit, [weights_ref])] = (i, unit, time.monotonic())
+                inflight[self.actors[i].run_unit.remote(unit, [weights_ref])] = (i, unit, time.monotonic(), [0])
             done, _ = ray.wait(list(inflight) + list(self._probes), num_returns=1, timeout=self.POLL_S)
             self._hand_out_overdue_again(inflight, queue)
             if not done:
@@ -262,7 +296,7 @@ class RayCollector:
                     continue
                 if ref not in inflight:
                     continue  # overdue: handed out again above
-                i, unit, _ = inflight.pop(ref)
+                i, unit, sent_s, _ = inflight.pop(ref)
                 key = (unit.round_index, unit.unit_index)
                 try:
                     result, node = ray.get(ref)
@@ -277,6 +311,7 @@ class RayCollector:
                     continue
                 results[key] = result
                 self.unit_nodes[key] = node
+                self._record_unit_time(time.monotonic() - sent_s)
                 last_progress = time.monotonic()
                 idle.append(i)
                 if on_result is not None:
@@ -289,18 +324,42 @@ class RayCollector:
         if self.unit_tries[key] > self.max_unit_retries:
             raise RoundFailed(f"unit {key} failed {self.unit_tries[key]} times; last error: {root_cause(err)}") from err
 
+    def _record_unit_time(self, seconds: float) -> None:
+        self.unit_seconds.append(seconds)
+        self._timeout_s = unit_timeout(self.unit_seconds, self.unit_timeout_floor_s, self.unit_timeout_multiple,
+                                       self.unit_timeout_s)
+
+    @property
+    def timeout_s(self) -> float:
+        """Seconds a unit may be out now without a result (``unit_timeout`` of the run's unit times)."""
+        return self._timeout_s
+
+    def _why_timeout(self) -> str:
+        if not self.unit_seconds:
+            return f"collection.unit_timeout_s={self.unit_timeout_s:g}s: no unit has come back yet to time units by"
+        median = statistics.median(self.unit_seconds)
+        return (f"{self.unit_timeout_multiple:g} x the median unit time {median:.1f}s of {len(self.unit_seconds)} units, "
+                f"at least collection.unit_timeout_floor_s={self.unit_timeout_floor_s:g}s, at most "
+                f"collection.unit_timeout_s={self.unit_timeout_s:g}s")
+
     def _hand_out_overdue_again(self, inflight: dict, queue: deque) -> None:
-        """Units out longer than ``unit_timeout_s``: each is a failed try; its actor is replaced (a
-        hung actor would hold its CPU for good) and the unit goes to the front of the queue. A late
-        reply of the old call is ignored: its ref is no longer in flight."""
+        """Units out longer than the timeout (``timeout_s``): each is a failed try; its actor is
+        replaced (a hung actor would hold its CPU for good) and the unit goes to the front of the
+        queue. A late reply of the old call is ignored: its ref is no longer in flight. A unit late
+        but not yet overdue gets a ``stall_line`` every quarter of the timeout."""
         now = time.monotonic()
-        for ref, (i, unit, sent_s) in list(inflight.items()):
-            if now - sent_s <= self.unit_timeout_s:
+        timeout = self.timeout_s
+        for ref, (i, unit, sent_s, lines) in list(inflight.items()):
+            waited = now - sent_s
+            if waited <= timeout:
+                if waited >= (lines[0] + 1) * timeout / 4:
+                    lines[0] = int(waited // (timeout / 4))
+                    print(stall_line(unit, i, waited, timeout), flush=True)
                 continue
             del inflight[ref]
             key = (unit.round_index, unit.unit_index)
-            err = TimeoutError(f"unit {key} got no result from actor-{i} within collection.unit_timeout_s="
-                               f"{self.unit_timeout_s:g}s (a hung actor or a lost call; raise it if units are that slow)")
+            err = TimeoutError(f"unit {key} got no result from actor-{i} within {timeout:.0f}s ({self._why_timeout()}; "
+                               "a hung actor or a lost call)")
             self._count_failed_try(key, err)
             log.warning("%s; handing it out again", err)
             queue.appendleft(unit)

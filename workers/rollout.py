@@ -19,6 +19,7 @@ choices ``seeding.correction_rng(seed, task, k)``.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Union, cast
@@ -26,6 +27,7 @@ from typing import Any, Union, cast
 import numpy as np
 import torch
 
+from gpl_dist.errors import ContractError
 from gpl_dist.models.build import PolicyNetwork
 from gpl_dist.models.layers import Conditioning
 from gpl_dist.models.mivoa import PreviousStep
@@ -39,6 +41,20 @@ log = logging.getLogger(__name__)
 #: typing, a recorded list); a plain callable cannot give the full-information text.
 CorrectionSource = Union[CorrectionOracle, Callable[[Any, np.random.Generator], Correction]]
 
+
+
+def _completion(info: dict, task_id: int, attempt: int) -> float:
+    """``info["completion"]`` at the end of an attempt; ``ContractError`` naming the task and the
+    value when it is not a finite fraction in [0, 1] (the run stops: its numbers would be wrong)."""
+    value = info.get("completion", 0.0)
+    try:
+        completion = float(value)
+    except (TypeError, ValueError):
+        completion = math.nan
+    if not (math.isfinite(completion) and 0.0 <= completion <= 1.0):
+        raise ContractError(f"task {task_id}, attempt {attempt}: the env's completion is {str(value)[:40]}, not a finite "
+                            "fraction in [0, 1] (gpl-dist check-domain names every such problem)")
+    return completion
 
 class TaskFailure(RuntimeError):
     """An env, expert or correction source raised for one task; carries the task id and stage."""
@@ -319,6 +335,7 @@ class Rollout:
                 continue
             info, task_id = infos[j], batch.task_ids[i]
             success = bool(info.get("success", False))
+            completion = _completion(info, task_id, k)
             text, kind = "", ""
             if not success and not last:
                 try:
@@ -334,7 +351,7 @@ class Rollout:
                 task_id=task_id, split=split, attempt_index=k,
                 instruction=batch.instructions[i], instruction_ids=vocab.encode(batch.instructions[i]),
                 observations=buffers.obs[j], actions=buffers.actions[j], expert_actions=buffers.labels[j],
-                completion=float(info.get("completion", 0.0)), success=success,
+                completion=completion, success=success,
                 correction=text, correction_kind=kind, correction_ids=corr_ids,
                 seed=reset_seeds[j], policy_version=policy_version,
                 expert_probs=None if buffers.probs is None else buffers.probs[j],

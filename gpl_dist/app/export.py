@@ -36,16 +36,30 @@ the expert. Its metadata: ``episode``, ``source``, ``run_dir``, ``checkpoint``, 
 last of ``corrections_before`` when the closest known phrasing was sent) and ``unknown_words``.
 A teaching log has no ``correction_after``: the correction after an attempt is the next attempt's.
 
+The log files read are the ``*.parquet`` of the folder that ``pyarrow.dataset`` reads: names
+starting with ``_`` or ``.`` (a temporary being written, a hidden file) are skipped, and a symbolic
+link is refused, not followed (``teaching_log_files``).
+
 ``minari.load_dataset(DATASET_ID)`` with ``MINARI_DATASETS_PATH=DIR`` reads it back.
+
+**Where it is written.** ``DATASET_ID`` must be Minari's ``namespace/name-vN`` form and resolve
+inside ``DIR`` (``dataset_target``), or nothing is written. The dataset is written into a hidden
+temporary folder beside its place (``.tmp-<hex>-<name-vN>``, which Minari's listing skips), read
+back, and renamed into place at the end; a failure removes it (and the folders made for it), so a
+failed export leaves nothing that blocks the next try.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import re
+import shutil
 import string
+import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -60,6 +74,64 @@ from storage.reader import open_shard_obs, read_shard_table
 TEXT_CHARSET = string.printable
 #: Longest instruction text the ``Text`` space admits.
 MAX_INSTRUCTION_CHARS = 1000
+
+
+#: Names a reader of a folder of logs skips: pyarrow.dataset's default ``ignore_prefixes``.
+SKIPPED_PREFIXES = ("_", ".")
+#: Minari's dataset id (minari 0.5.4, ``minari.dataset.minari_dataset.DATASET_ID_RE``: an optional
+#: namespace of word characters, '-', '_' and '/', a name, a version), with the version required
+#: (``minari.load_dataset`` needs one). Paths outside ``--out`` are excluded besides (``dataset_target``).
+DATASET_ID_RE = re.compile(r"(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<dataset>[-_\w]+?)-v(?P<version>\d+)")
+
+
+def is_temporary(name: str) -> bool:
+    """Whether a reader skips the file ``name``: it starts with ``_`` or ``.``, as pyarrow.dataset
+    skips (a temporary being written, ``_tmp-<hex>-<name>``, or a hidden file)."""
+    return name.startswith(SKIPPED_PREFIXES)
+
+
+def dataset_target(out: str | Path, dataset_id: str) -> Path:
+    """The folder ``out/dataset_id`` of a dataset, checked before anything is written:
+    ``UsageError`` (one line) for an id that is not Minari's ``namespace/name-vN`` form, or whose
+    folder would not be inside ``out`` (a symbolic link on the way out of it)."""
+    shown = repr(dataset_id)[:120]
+    if not isinstance(dataset_id, str) or not DATASET_ID_RE.fullmatch(dataset_id) or "//" in dataset_id:
+        raise UsageError(f"--dataset-id {shown} is not Minari's namespace/name-vN form (letters, digits, '-' and '_'; "
+                         "namespace parts joined by '/'; e.g. gpl-dist/multiroom-run-v0)")
+    target = Path(out) / dataset_id
+    inside, real = os.path.realpath(out), os.path.realpath(target)
+    if os.path.commonpath([inside, real]) != inside:
+        raise UsageError(f"--dataset-id {shown} would be written at {real}, outside --out {out} "
+                         "(a symbolic link on the way): give another id or --out")
+    return target
+
+
+@contextlib.contextmanager
+def _dataset_folder(out: str | Path, dataset_id: str) -> Iterator[Path]:
+    """A hidden temporary folder beside the dataset's place (``dataset_target``), to write it in:
+    renamed into place when the body ends; removed, with the folders made for it, when it fails."""
+    target = dataset_target(out, dataset_id)
+    if target.exists() or target.is_symlink():
+        raise UsageError(f"{target} exists: remove it or give another --dataset-id")
+    made = []  # the folders from --out to the dataset's parent that are not there yet, deepest first
+    for folder in (target.parent, *target.parent.parents):
+        if folder.exists() or folder.is_symlink():
+            break
+        made.append(folder)
+    tmp = target.parent / f".tmp-{uuid.uuid4().hex[:12]}-{target.name}"
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp.mkdir()
+        yield tmp
+        if target.exists() or target.is_symlink():
+            raise UsageError(f"{target} was made while this export ran: remove it or give another --dataset-id")
+        os.rename(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)  # never follows a symbolic link
+        for folder in made:
+            with contextlib.suppress(OSError):  # not empty: something else is there
+                folder.rmdir()
+        raise
 
 
 def default_dataset_id(run_dir: str | Path, domain: str, kind: str = "") -> str:
@@ -79,21 +151,18 @@ def _minari():
     return EpisodeBuffer, MinariDataset, MinariStorage
 
 
-def _new_storage(MinariStorage, domain, vocab, out: str | Path, dataset_id: str) -> tuple[Any, Path]:
-    """A new Minari storage of ``domain``'s spaces (the observation dict above) at ``out/dataset_id``."""
+def _new_storage(MinariStorage, domain, vocab, folder: Path) -> tuple[Any, Path]:
+    """A new Minari storage of ``domain``'s spaces (the observation dict above) in ``folder/data``."""
     import gymnasium as gym
 
-    target = Path(out) / dataset_id
-    if target.exists():
-        raise UsageError(f"{target} exists: remove it or give another --dataset-id")
     env = domain.make_env(0)
     observation_space = gym.spaces.Dict({
         "observation": env.observation_space,
         "instruction": gym.spaces.Text(MAX_INSTRUCTION_CHARS, charset=TEXT_CHARSET),
         "instruction_ids": gym.spaces.Box(0, len(vocab) - 1, (vocab.max_tokens,), np.int64),
     })
-    data_path = target / "data"
-    data_path.mkdir(parents=True)
+    data_path = folder / "data"
+    data_path.mkdir()
     storage = MinariStorage.new(data_path, observation_space=observation_space, action_space=env.action_space,
                                 data_format="arrow", jpeg_encoding=False)
     return storage, data_path
@@ -118,56 +187,81 @@ def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, datase
     domain = get_domain(cfg.env.domain)
     vocab = domain.vocabulary_for(cfg.model.paraphrases)
     dataset_id = dataset_id or default_dataset_id(run_dir, domain.name)
+    dataset_target(out, dataset_id)  # a bad id fails before the buffer is read
     loc = resolve(buffer_root)
     rounds = committed_rounds(loc)
     if not rounds:
         raise UsageError(f"{buffer_root} has no committed round to export")
-    storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
-    metas: list[dict[str, Any]] = []
+    with _dataset_folder(out, dataset_id) as folder:  # renamed into place at the end; removed on failure
+        storage, data_path = _new_storage(MinariStorage, domain, vocab, folder)
+        metas: list[dict[str, Any]] = []
 
-    def episodes():
-        for r in rounds:
-            for shard in load_manifest(loc, r).shards:
-                attempts = read_shard_table(loc, shard, "attempts").to_pylist()
-                tuples = read_shard_table(loc, shard, "tuples", ["attempt_key", "t", "action", "expert_action"])
-                obs = open_shard_obs(loc, shard)
-                by_key = {a["attempt_key"]: a for a in attempts}
-                keys = tuples.column("attempt_key").to_numpy()
-                order = np.lexsort((tuples.column("t").to_numpy(), keys))
-                keys, actions = keys[order], tuples.column("action").to_numpy()[order]
-                labels = tuples.column("expert_action").to_numpy()[order]
-                for a in attempts:
-                    rows = keys == a["attempt_key"]
-                    stored = np.asarray(obs[a["obs_start"]:a["obs_start"] + a["length"]])
-                    before = [by_key[k] for k in a["context_keys"]]
-                    metas.append({
-                        "task_id": a["task_id"], "split": a["split"], "attempt_index": a["attempt_index"],
-                        "round": a["round"], "unit": a["unit"], "attempt_key": a["attempt_key"], "seed": a["seed"],
-                        "policy_version": a["policy_version"], "worker_id": a["worker_id"],
-                        "completion": a["completion"], "success": a["success"], "reward_sum": a.get("reward_sum"),
-                        "instruction": a["instruction"], "instruction_ids": list(a["instruction_ids"]),
-                        "corrections_before": [b["correction"] for b in before],
-                        "corrections_before_ids": [list(b["correction_ids"]) for b in before],
-                        "correction_after": a["correction"], "correction_after_ids": list(a["correction_ids"]),
-                        "correction_after_kind": a["correction_kind"],
-                    })
-                    json.dumps(metas[-1])  # plain values only
-                    yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a["task_id"]), int(a["seed"]),
-                                   a["instruction"], a["instruction_ids"], stored, actions[rows], labels[rows],
-                                   f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']})")
+        def episodes():
+            for r in rounds:
+                for shard in load_manifest(loc, r).shards:
+                    attempts = read_shard_table(loc, shard, "attempts").to_pylist()
+                    tuples = read_shard_table(loc, shard, "tuples", ["attempt_key", "t", "action", "expert_action"])
+                    obs = open_shard_obs(loc, shard)
+                    by_key = {a["attempt_key"]: a for a in attempts}
+                    keys = tuples.column("attempt_key").to_numpy()
+                    order = np.lexsort((tuples.column("t").to_numpy(), keys))
+                    keys, actions = keys[order], tuples.column("action").to_numpy()[order]
+                    labels = tuples.column("expert_action").to_numpy()[order]
+                    for a in attempts:
+                        rows = keys == a["attempt_key"]
+                        stored = np.asarray(obs[a["obs_start"]:a["obs_start"] + a["length"]])
+                        before = [by_key[k] for k in a["context_keys"]]
+                        metas.append({
+                            "task_id": a["task_id"], "split": a["split"], "attempt_index": a["attempt_index"],
+                            "round": a["round"], "unit": a["unit"], "attempt_key": a["attempt_key"], "seed": a["seed"],
+                            "policy_version": a["policy_version"], "worker_id": a["worker_id"],
+                            "completion": a["completion"], "success": a["success"], "reward_sum": a.get("reward_sum"),
+                            "instruction": a["instruction"], "instruction_ids": list(a["instruction_ids"]),
+                            "corrections_before": [b["correction"] for b in before],
+                            "corrections_before_ids": [list(b["correction_ids"]) for b in before],
+                            "correction_after": a["correction"], "correction_after_ids": list(a["correction_ids"]),
+                            "correction_after_kind": a["correction_kind"],
+                        })
+                        json.dumps(metas[-1])  # plain values only
+                        yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a["task_id"]), int(a["seed"]),
+                                       a["instruction"], a["instruction_ids"], stored, actions[rows], labels[rows],
+                                       f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']})")
 
-    storage.update_episodes(episodes())
-    _finish(storage, MinariDataset, data_path, dataset_id, metas,
-            "DAgger with language corrections (GPL, Co-Reyes et al. 2019)",
-            f"gpl-dist buffer of {run_dir.resolve()} ({domain.name}, model.variant {cfg.model.variant}): "
-            "each committed attempt an episode; see gpl_dist/app/export.py")
+        storage.update_episodes(episodes())
+        _finish(storage, MinariDataset, data_path, dataset_id, metas,
+                "DAgger with language corrections (GPL, Co-Reyes et al. 2019)",
+                f"gpl-dist buffer of {run_dir.resolve()} ({domain.name}, model.variant {cfg.model.variant}): "
+                "each committed attempt an episode; see gpl_dist/app/export.py")
     return dataset_id, len(metas)
 
 
+def _log_entries(folder: Path) -> list[os.DirEntry]:
+    """The entries of ``folder`` named ``*.parquet`` that a reader does not skip (``is_temporary``)."""
+    with os.scandir(folder) as entries:
+        return [e for e in entries if e.name.endswith(".parquet") and not is_temporary(e.name)]
+
+
+def teaching_log_files(log_dir: str | Path) -> list[Path]:
+    """The teaching logs of ``log_dir``, sorted: the files ``pyarrow.dataset.dataset(log_dir)`` reads
+    (``*.parquet`` not starting with ``_`` or ``.``: never a temporary being written). A symbolic
+    link among them is refused (``UsageError``), not followed; a folder named ``*.parquet`` is not
+    a log."""
+    log_dir = Path(log_dir)
+    files = []
+    for e in _log_entries(log_dir):
+        if e.is_symlink():
+            raise UsageError(f"{log_dir / e.name} is a symbolic link: not followed; copy the log it points to "
+                             f"into {log_dir} instead")
+        if e.is_file(follow_symlinks=False):
+            files.append(log_dir / e.name)
+    return sorted(files)
+
+
 def is_teaching_log(path: str | Path) -> bool:
-    """Whether ``path`` is a folder of teaching logs (``*.parquet``, no run's ``config.yaml``)."""
+    """Whether ``path`` is a folder of teaching logs (``*.parquet`` that a reader does not skip, no
+    run's ``config.yaml``)."""
     p = Path(path)
-    return p.is_dir() and not (p / "config.yaml").is_file() and any(p.glob("*.parquet"))
+    return p.is_dir() and not (p / "config.yaml").is_file() and bool(_log_entries(p))
 
 
 def teaching_chains(rows: list[dict]) -> list[tuple[dict, list[dict]]]:
@@ -198,10 +292,12 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     from gpl_dist.app.teaching import LOG_SCHEMA
 
     EpisodeBuffer, MinariDataset, MinariStorage = _minari()
+    if dataset_id:
+        dataset_target(out, dataset_id)  # a bad id fails before the logs are read
     log_dir = Path(log_dir)
-    files = sorted(log_dir.glob("*.parquet"))
+    files = teaching_log_files(log_dir) if log_dir.is_dir() else []
     if not files:
-        raise UsageError(f"{log_dir} holds no teaching log (*.parquet)")
+        raise UsageError(f"{log_dir} holds no teaching log (*.parquet not starting with '_' or '.')")
     try:
         table = ds.dataset([str(f) for f in files], format="parquet").to_table()
     except (OSError, ValueError) as err:
@@ -227,46 +323,47 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     if not dataset_id:  # RUN/teaching/log: named after the run, so two runs' logs do not share an id
         named = log_dir.resolve().parent.parent if log_dir.resolve().parent.name == "teaching" else log_dir
         dataset_id = default_dataset_id(named, domain.name, kind="teaching")
-    storage, data_path = _new_storage(MinariStorage, domain, vocab, out, dataset_id)
-    by_episode: dict[str, list[dict]] = {}
-    for r in rows:
-        by_episode.setdefault(r["episode"], []).append(r)
-    metas: list[dict[str, Any]] = []
+    with _dataset_folder(out, dataset_id) as folder:  # renamed into place at the end; removed on failure
+        storage, data_path = _new_storage(MinariStorage, domain, vocab, folder)
+        by_episode: dict[str, list[dict]] = {}
+        for r in rows:
+            by_episode.setdefault(r["episode"], []).append(r)
+        metas: list[dict[str, Any]] = []
 
-    def episodes():
-        for episode in sorted(by_episode):
-            for row, chain in teaching_chains(by_episode[episode]):
-                policy = policies[(str(run_dir) if run_dir else row["run_dir"], row["checkpoint"], bool(row["greedy"]))]
-                texts = [r["correction_before"] for r in chain[1:]] + ([row["correction_before"]] if chain else [])
-                replayed = policy.attempts(int(row["task_id"]), texts, seed=int(row["seed"]))
-                a = replayed[-1]
-                what = f"teaching episode {episode[:40]} attempt {row['attempt']} (task {row['task_id']})"
-                if a.completion != row["completion"]:
-                    raise UsageError(f"{what} replays to completion {a.completion:.4f}, not the logged "
-                                     f"{row['completion']:.4f}: another checkpoint or code than the one that taught")
-                ids = [[int(i) for i in r.correction_ids] for r in replayed[:-1]]  # what the policy read
-                metas.append({
-                    "episode": episode, "source": row["source"], "run_dir": row["run_dir"], "checkpoint": row["checkpoint"],
-                    "checkpoint_round": row["checkpoint_round"], "greedy": row["greedy"], "task_id": row["task_id"],
-                    "split": row["split"], "attempt_index": row["attempt"], "seed": row["seed"],
-                    "completion": row["completion"], "success": row["success"],
-                    "solved_at": -1 if row["solved_at"] is None else row["solved_at"], "undone": row["undone"],
-                    "hint_shown": row["hint_shown"], "started_at": row["started_at"].isoformat(),
-                    "seconds": row["seconds"], "instruction": a.instruction,
-                    "instruction_ids": [int(i) for i in a.instruction_ids],
-                    "corrections_before": texts, "corrections_before_ids": ids,
-                    "typed_before": row["typed"], "unknown_words": list(row["unknown_words"]),
-                })
-                json.dumps(metas[-1])  # plain values only
-                yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a.task_id), int(a.seed), a.instruction,
-                               a.instruction_ids, np.asarray(a.observations), np.asarray(a.actions),
-                               np.asarray(a.expert_actions), what)
+        def episodes():
+            for episode in sorted(by_episode):
+                for row, chain in teaching_chains(by_episode[episode]):
+                    policy = policies[(str(run_dir) if run_dir else row["run_dir"], row["checkpoint"], bool(row["greedy"]))]
+                    texts = [r["correction_before"] for r in chain[1:]] + ([row["correction_before"]] if chain else [])
+                    replayed = policy.attempts(int(row["task_id"]), texts, seed=int(row["seed"]))
+                    a = replayed[-1]
+                    what = f"teaching episode {episode[:40]} attempt {row['attempt']} (task {row['task_id']})"
+                    if a.completion != row["completion"]:
+                        raise UsageError(f"{what} replays to completion {a.completion:.4f}, not the logged "
+                                         f"{row['completion']:.4f}: another checkpoint or code than the one that taught")
+                    ids = [[int(i) for i in r.correction_ids] for r in replayed[:-1]]  # what the policy read
+                    metas.append({
+                        "episode": episode, "source": row["source"], "run_dir": row["run_dir"], "checkpoint": row["checkpoint"],
+                        "checkpoint_round": row["checkpoint_round"], "greedy": row["greedy"], "task_id": row["task_id"],
+                        "split": row["split"], "attempt_index": row["attempt"], "seed": row["seed"],
+                        "completion": row["completion"], "success": row["success"],
+                        "solved_at": -1 if row["solved_at"] is None else row["solved_at"], "undone": row["undone"],
+                        "hint_shown": row["hint_shown"], "started_at": row["started_at"].isoformat(),
+                        "seconds": row["seconds"], "instruction": a.instruction,
+                        "instruction_ids": [int(i) for i in a.instruction_ids],
+                        "corrections_before": texts, "corrections_before_ids": ids,
+                        "typed_before": row["typed"], "unknown_words": list(row["unknown_words"]),
+                    })
+                    json.dumps(metas[-1])  # plain values only
+                    yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a.task_id), int(a.seed), a.instruction,
+                                   a.instruction_ids, np.asarray(a.observations), np.asarray(a.actions),
+                                   np.asarray(a.expert_actions), what)
 
-    storage.update_episodes(episodes())
-    _finish(storage, MinariDataset, data_path, dataset_id, metas,
-            "a person's language corrections of a GPL policy (gpl-dist teach/serve)",
-            f"gpl-dist teaching logs of {log_dir.resolve()} ({domain.name}): each attempt a person asked for an "
-            "episode, replayed from its seed; see gpl_dist/app/export.py")
+        storage.update_episodes(episodes())
+        _finish(storage, MinariDataset, data_path, dataset_id, metas,
+                "a person's language corrections of a GPL policy (gpl-dist teach/serve)",
+                f"gpl-dist teaching logs of {log_dir.resolve()} ({domain.name}): each attempt a person asked for an "
+                "episode, replayed from its seed; see gpl_dist/app/export.py")
     return dataset_id, len(metas)
 
 

@@ -1,11 +1,15 @@
 """Pictures of tasks and attempts: a PNG of a task's start state, a GIF of an attempt.
 
-Both domains' envs render the full scene with ``render_mode="rgb_array"``; this module only
-drives them and writes files.
+A domain's env draws its scene with ``render_mode="rgb_array"`` where it offers that; an env that
+offers only ``render_mode="ansi"`` is drawn as its text picture, and one that offers neither as a
+card with its instruction and completion. ``picture_points()`` (the moving things in pixels), where
+the env has it, draws the attempt's path on its last frame; without it the frames have no path.
+This module only drives the envs and writes files (``docs/adding-a-domain.md``, optional parts).
 """
 
 from __future__ import annotations
 
+import io
 import textwrap
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 from PIL import Image
 
+from gpl_dist.atomic import write_atomic
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.experts import make_expert
@@ -60,13 +65,60 @@ class Replay:
         return int(hits[0]) if hits.size else None
 
 
+def picture_mode(domain_name: str) -> str | None:
+    """How a domain's env draws itself: ``rgb_array``, else ``ansi``, else None (its
+    ``metadata["render_modes"]``)."""
+    if domain_name not in _MODES:
+        env = get_domain(domain_name).make_env(0)
+        modes = tuple(getattr(env, "metadata", {}).get("render_modes", ()) or ())
+        _MODES[domain_name] = next((m for m in ("rgb_array", "ansi") if m in modes), None)
+    return _MODES[domain_name]
+
+
+_MODES: dict[str, str | None] = {}
+#: Pixels of one character of a text picture (an ``ansi``-only domain's frames).
+TEXT_CELL_PX = (8, 16)
+
+
+def draw(env: Any, mode: str | None, info: dict) -> np.ndarray:
+    """The env's picture as an RGB array: its own (``rgb_array``), its text picture drawn
+    (``ansi``), or a card with its instruction and completion (neither)."""
+    if mode == "rgb_array":
+        return np.asarray(env.render())
+    text = str(env.render()) if mode == "ansi" else (f"{getattr(env, 'instruction', '')}\n(this domain draws no "
+                                                    f"picture)\ncompletion {float(info.get('completion', 0.0)):.2f}")
+    return text_picture(text)
+
+
+def text_picture(text: str) -> np.ndarray:
+    """``text`` (an env's ANSI picture, colour codes dropped) drawn black on white, one cell per character."""
+    import re
+
+    from PIL import ImageDraw, ImageFont
+
+    lines = re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines() or [""]
+    cw, ch = TEXT_CELL_PX
+    image = Image.new("RGB", (max(160, cw * max(len(line) for line in lines) + 8), ch * len(lines) + 8), "white")
+    font = ImageFont.load_default(size=ch - 3)
+    pen = ImageDraw.Draw(image)
+    for i, line in enumerate(lines):
+        for j, c in enumerate(line):
+            pen.text((4 + cw * j, 4 + ch * i), c, fill="black", font=font)
+    return np.asarray(image)
+
+
+def _points(env: Any) -> tuple:
+    return tuple(env.picture_points()) if hasattr(env, "picture_points") else ()
+
+
 def replay_attempt(domain_name: str, task_id: int, actions: Sequence[int] | np.ndarray, reset_seed: int,
                    render: bool = True) -> Replay:
     """Step ``task_id``'s env from ``reset_seed`` through ``actions``, drawing each state when ``render``."""
     domain = get_domain(domain_name)
-    env: Any = domain.make_env(task_id, render_mode="rgb_array" if render else None)  # its picture_points()
+    mode = picture_mode(domain_name) if render else None
+    env: Any = domain.make_env(task_id, render_mode=mode) if mode else domain.make_env(task_id)
     _, info = env.reset(seed=reset_seed)
-    frames, points = ([np.asarray(env.render())], [env.picture_points()]) if render else ([], [])
+    frames, points = ([draw(env, mode, info)], [_points(env)]) if render else ([], [])
     completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
     planned = np.asarray(actions).tolist()
     for t, a in enumerate(planned[: domain.steps_per_attempt]):
@@ -76,8 +128,8 @@ def replay_attempt(domain_name: str, task_id: int, actions: Sequence[int] | np.n
         completion.append(float(info.get("completion", 0.0)))
         success.append(bool(info.get("success", False)))
         if render:
-            frames.append(np.asarray(env.render()))
-            points.append(env.picture_points())
+            frames.append(draw(env, mode, info))
+            points.append(_points(env))
     return Replay(frames, points, np.asarray(completion), np.asarray(success, dtype=bool))
 
 
@@ -87,13 +139,14 @@ def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None
     if not expert:
         return replay_attempt(domain_name, task_id, list(actions or ())[: max_steps or None], seed).frames
     domain = get_domain(domain_name)
-    env = domain.make_env(task_id, render_mode="rgb_array")
-    env.reset(seed=seed)
-    frames: list[np.ndarray] = [np.asarray(env.render())]
+    mode = picture_mode(domain_name)
+    env = domain.make_env(task_id, render_mode=mode) if mode else domain.make_env(task_id)
+    _, info = env.reset(seed=seed)
+    frames: list[np.ndarray] = [draw(env, mode, info)]
     policy = make_expert(env)
     for _ in range(max_steps or domain.steps_per_attempt):
         _, _, _, _, info = env.step(policy.act(env))
-        frames.append(np.asarray(env.render()))
+        frames.append(draw(env, mode, info))
         if info.get("success"):
             break  # the expert's attempt ends where the task is solved, in either domain
     return frames
@@ -104,9 +157,11 @@ def write_picture(frames: list[np.ndarray], out: str | Path, fps: int = 8) -> Pa
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if out.suffix.lower() == ".gif":
-        out.write_bytes(gif_bytes(frames, fps))
+        write_atomic(out, gif_bytes(frames, fps))
     else:
-        Image.fromarray(frames[-1] if len(frames) > 1 else frames[0]).save(out)
+        buf = io.BytesIO()
+        Image.fromarray(frames[-1] if len(frames) > 1 else frames[0]).save(buf, format="PNG")
+        write_atomic(out, buf.getvalue())
     return out
 
 
@@ -197,16 +252,18 @@ def still_frame(replay: Replay) -> np.ndarray:
     from PIL import ImageDraw
 
     image = Image.fromarray(replay.frames[-1])
-    draw = ImageDraw.Draw(image)
+    pen = ImageDraw.Draw(image)
     width = max(2, image.width // 150)
+    if not replay.points or not replay.points[0]:
+        return np.asarray(image)  # the env has no picture_points: no path to draw
     for i in range(len(replay.points[0])):
         path = [p[i] for p in replay.points]
-        draw.line(path, fill=PATH_RGB[i % len(PATH_RGB)], width=width, joint="curve")
+        pen.line(path, fill=PATH_RGB[i % len(PATH_RGB)], width=width, joint="curve")
     solved = replay.solved_at
     if solved is not None:
         for x, y in replay.points[solved][-1:]:
             r = image.width / 40
-            draw.ellipse((x - r, y - r, x + r, y + r), outline=SOLVED_RGB, width=width + 1)
+            pen.ellipse((x - r, y - r, x + r, y + r), outline=SOLVED_RGB, width=width + 1)
     return np.asarray(image)
 
 

@@ -7,7 +7,9 @@ last correction back), ``:quit``. A correction with words the policy does not kn
 of the phrasings it was trained on, is shown with the closest known phrasing before it is sent:
 Enter sends it as typed, ``:use`` the closest one (the log keeps both what was typed and what was
 sent). Lines typed while an attempt runs are dropped (they were typed before seeing it). Every
-attempt is logged (``gpl_dist.app.teaching``).
+attempt is logged (``gpl_dist.app.teaching``); the log and the GIFs are written under temporary
+names and renamed into place, and ``OUT`` is checked (a folder that takes a file) before the first
+attempt.
 """
 
 from __future__ import annotations
@@ -15,7 +17,15 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable, TextIO
 
-from gpl_dist.app.teaching import TaughtAttempt, TeachingEpisode, TeachingError, write_episode_log
+from gpl_dist.app.teaching import (
+    TaughtAttempt,
+    TeachingEpisode,
+    TeachingError,
+    ensure_folder,
+    teaching_writer,
+    write_atomic,
+    write_episode_log,
+)
 
 HELP = "type a correction; commands: ':hint' (what the oracle would say), ':undo' (take the last correction back), ':quit'"
 
@@ -36,8 +46,13 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
     def say(text: str = "") -> None:
         print(text, file=stream, flush=True)
 
-    log_dir, gif_dir = out_dir / "log", out_dir / "gifs"
-    gif_dir.mkdir(parents=True, exist_ok=True)
+    with teaching_writer(out_dir) as folder:  # OUT checked (one line when it cannot hold the log), and held
+        return _teach(episode, folder, always_hint, read_line, say)
+
+
+def _teach(episode: TeachingEpisode, out_dir: Path, always_hint: bool, read_line: Callable[[str], str],
+           say: Callable[[str], None]) -> Path:
+    log_dir, gif_dir = out_dir / "log", ensure_folder(out_dir / "gifs")
     say(f"task {episode.task_id} of {episode.teacher.domain.name} ({episode.split} split), seed {episode.seed}: "
         f"'{episode.instruction}'")
     log_path = ""
@@ -46,8 +61,7 @@ def teach_in_terminal(episode: TeachingEpisode, out_dir: Path, *, always_hint: b
     while True:
         attempt = episode.attempt(correction, typed)
         log_path = write_episode_log(episode, log_dir)
-        gif = gif_dir / f"{episode.episode_id}-attempt{attempt.index}.gif"
-        gif.write_bytes(episode.gif(attempt.index))
+        gif = write_atomic(gif_dir / f"{episode.episode_id}-attempt{attempt.index}.gif", episode.gif(attempt.index))
         _show(say, attempt, gif)
         if attempt.success or episode.corrections_left <= 0:
             say("solved." if attempt.success else f"no corrections left ({episode.teacher.max_corrections} given).")

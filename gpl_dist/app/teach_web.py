@@ -28,7 +28,15 @@ wait for the render in flight), at most ``RENDERS_AT_ONCE`` at a time, and at mo
 
 A request that cannot be served answers 4xx with ``{"detail": "<one sentence>"}``; no request
 changes any episode but its own. At most ``MAX_EPISODES`` episodes are kept (the oldest go first);
-each is logged after every attempt under ``OUT/log``.
+each is logged after every attempt under ``OUT/log``. A log that cannot be written answers 507 (no
+space: a full disk, a spent quota) or 503 (any other cause) with the file and the cause in
+``detail``, and the episode stays as it was before the request (the page says why; the next request
+is served as usual). ``serve`` checks ``OUT`` before it listens (a folder in which a file can be
+made) and holds ``OUT/.writers.lock`` while it serves (``teaching.teaching_writer``).
+
+Memory: an episode holds its attempts' actions and states (kilobytes); a picture is drawn from the
+frames it shows (``teaching.drawn_at``), one full-size frame at a time, and finished pictures share
+``PICTURE_BUDGET_BYTES``.
 """
 
 from __future__ import annotations
@@ -54,8 +62,11 @@ from gpl_dist.app.teaching import (
     Teacher,
     TeachingEpisode,
     TeachingError,
+    TeachingWriteError,
     check_correction,
+    check_out_folder,
     episode_log_bytes,
+    teaching_writer,
     write_episode_log,
 )
 from gpl_dist.splits import split_tasks
@@ -225,6 +236,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
     """The web app teaching ``teacher``'s policy; logs under ``out_dir/log``. Served on a loopback
     ``host``, it answers only requests addressed to a loopback name (no DNS rebinding)."""
     split_tasks(teacher.domain.name, split)  # an unknown split fails here, naming the known ones
+    check_out_folder(out_dir)  # a file, or a folder that takes no file, fails here rather than at each request
     app = FastAPI(title="gpl-dist teach", docs_url=None, redoc_url=None, openapi_url=None)
     if _is_loopback(host):
         app.add_middleware(TrustedHostMiddleware, allowed_hosts=["127.0.0.1", "localhost", "[::1]"])
@@ -236,6 +248,11 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
     @app.exception_handler(TeachingError)
     async def teaching_error(request: Request, err: TeachingError) -> JSONResponse:
         return JSONResponse({"detail": str(err)}, status_code=400)
+
+    @app.exception_handler(TeachingWriteError)
+    async def not_written(request: Request, err: TeachingWriteError) -> JSONResponse:
+        return JSONResponse({"detail": f"not saved, nothing changed: {err}"[:600]},
+                            status_code=507 if err.no_space else 503)
 
     @app.exception_handler(RequestValidationError)
     async def bad_request(request: Request, err: RequestValidationError) -> JSONResponse:
@@ -282,8 +299,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
         if not lock.acquire(blocking=False):
             raise HTTPException(409, busy)
         try:
-            change(episode)
-            write_episode_log(episode, log_dir)
+            episode.logged(change, log_dir)  # a failed write puts the episode back as it was
             return _view(episode)
         finally:
             lock.release()
@@ -349,17 +365,19 @@ def serve(teacher: Teacher, out_dir: Path, host: str = "127.0.0.1", port: int = 
 
     if not 1 <= port <= 65535:
         raise TeachingError(f"--port must be in 1..65535, got {port}")
-    app = create_app(teacher, out_dir, split, host)  # an unknown split fails here, before anything listens
+    split_tasks(teacher.domain.name, split)  # an unknown split fails here, before anything is made
     with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
         try:  # a taken port fails in one line here rather than in uvicorn's log
             probe.bind((host, port))
         except OSError as err:
             raise TeachingError(f"cannot listen on {host}:{port}: {err.strerror or err}") from None
-    if not _is_loopback(host):
-        print(f"warning: serving on {host}: anyone who can reach this machine can use the page and its log")
-    print(f"teaching {teacher.run_dir} ({teacher.domain.name}, round {teacher.round_index}) at http://{host}:{port}/",
-          flush=True)
-    uvicorn.run(app, host=host, port=port, log_level="warning")
+    with teaching_writer(out_dir):  # --out: a folder that takes a file, or one line here, before anything listens
+        app = create_app(teacher, out_dir, split, host)
+        if not _is_loopback(host):
+            print(f"warning: serving on {host}: anyone who can reach this machine can use the page and its log")
+        print(f"teaching {teacher.run_dir} ({teacher.domain.name}, round {teacher.round_index}) at http://{host}:{port}/",
+              flush=True)
+        uvicorn.run(app, host=host, port=port, log_level="warning")
 
 
 def _is_loopback(host: str) -> bool:

@@ -21,38 +21,52 @@ mostly unknown words (another language, noise) is refused.
 **The log.** Every attempt of every episode is a row of ``<log dir>/<episode>.parquet`` (rewritten
 atomically after each attempt; ``pyarrow.dataset.dataset(log_dir)`` reads them all): see
 ``LOG_SCHEMA``.
+
+**Files on disk.** Every file a reader may see (a log, a GIF) is written under a temporary name,
+``_tmp-<hex>-<name>``, then renamed into place (``write_atomic``); a write that fails removes its
+temporary and raises ``TeachingWriteError`` (one line: the file and the cause). Readers skip the
+names pyarrow skips, those starting with ``_`` or ``.`` (``gpl_dist.app.export.is_temporary``). A
+process writing into a teaching folder (``serve``, ``teach``) holds its ``.writers.lock`` shared
+(``teaching_writer``); ``teaching_leftovers`` removes the temporaries no live writer can own (a
+``kill -9`` leaves them), never following a symbolic link.
 """
 
 from __future__ import annotations
 
+import contextlib
 import difflib
+import errno
 import io
+import os
 import threading
 import time
 import unicodedata
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, Collection, Iterator, TypeVar
 
 import numpy as np
 import pyarrow as pa
 
+from gpl_dist.app import rendering
 from gpl_dist.app.policy import load_policy
 from gpl_dist.app.rendering import (
-    captioned_attempt_frames,
+    Replay,
+    _captioned,
+    caption_lines,
     frame_steps,
-    gif_bytes,
     replay_attempt,
+    step_caption,
     still_frame,
 )
+from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary, split_words
 from gpl_dist.records import Attempt
 from gpl_dist.roles import DomainSpec
 from gpl_dist.splits import split_of, split_tasks
 from gpl_dist.variants import TEACHABLE
-from storage.fs import resolve
 
 #: Longest correction or instruction a person may type, in characters.
 MAX_TEXT_CHARS = 200
@@ -67,6 +81,24 @@ TEACHABLE_VARIANTS = TEACHABLE
 
 class TeachingError(UsageError):
     """What a person asked for cannot be done; the message says why and what to do instead."""
+
+
+#: ``errno`` values of a write failure that means no space (a full disk, a spent quota).
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+class TeachingWriteError(TeachingError):
+    """A file of a teaching folder could not be written: the message (one line) names the file and
+    the cause; ``errno`` is the cause's (None when it is not the system's), ``no_space`` whether it
+    is a full disk or a spent quota."""
+
+    def __init__(self, message: str, errno_: int | None = None):
+        super().__init__(" ".join(message.split()))
+        self.errno = errno_
+
+    @property
+    def no_space(self) -> bool:
+        return self.errno in NO_SPACE_ERRNOS
 
 
 @dataclass(frozen=True)
@@ -398,6 +430,19 @@ class TeachingEpisode:
                 if solved_at is not None else f"not solved in {ran} steps")
         return f"{env.render()}\n{note}"
 
+    def logged(self, change: Callable[["TeachingEpisode"], object], log_dir: str | Path) -> None:
+        """``change`` the episode (``attempt``, ``undo``, ``oracle_attempt``), then write its log
+        (``write_episode_log``). When the log cannot be written (``TeachingWriteError``), the episode
+        is put back as it was before ``change``: what a person is shown is what is logged."""
+        saved = (list(self.attempts), list(self.undone), dict(self.oracle_branch), self._hint_asked)
+        change(self)
+        try:
+            write_episode_log(self, log_dir)
+        except BaseException:
+            self.attempts[:], self.undone[:] = saved[0], saved[1]
+            self.oracle_branch, self._hint_asked = saved[2], saved[3]
+            raise
+
     def find(self, index: int, oracle: bool = False) -> TaughtAttempt:
         """Attempt ``index`` of the episode (or of the oracle's branch)."""
         found = self.oracle_branch.get(index) if oracle else (self.attempts[index] if 0 <= index < len(self.attempts) else None)
@@ -407,10 +452,27 @@ class TeachingEpisode:
 
     def gif(self, index: int, oracle: bool = False) -> bytes:
         """Attempt ``index`` as an animated GIF, captioned with what led to it (wrapped, whole), the
-        step, its completion and the step it solved the task at."""
+        step, its completion and the step it solved the task at (``rendering.captioned_attempt_frames``,
+        drawn from the frames it shows only)."""
+        from PIL import Image
+
         a = self.find(index, oracle)
+        name = self.teacher.domain.name
         top = f"attempt {index + 1}: {'instruction' if index == 0 else 'correction'}: {a.said_before}"
-        return gif_bytes(captioned_attempt_frames(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed, top))
+        course = replay_attempt(name, self.task_id, a.actions, a.reset_seed, render=False)  # the captions' numbers
+        last = len(course.completion) - 1
+        lines = caption_lines(top)
+
+        def captioned(t: int, frame: np.ndarray) -> Any:
+            return Image.fromarray(_captioned(frame, [*lines, step_caption(t, last, course)]))
+
+        shown = frame_steps(name, last)
+        drawn, replay = drawn_at(name, self.task_id, a.actions, a.reset_seed, shown[:-1], captioned)
+        images = [drawn[t] for t in shown[:-1]] + [captioned(last, still_frame(replay))]
+        out = io.BytesIO()  # as rendering.gif_bytes: the last frame, path drawn, held for a moment
+        images[0].save(out, format="GIF", save_all=True, append_images=images[1:] + [images[-1]] * 6,
+                       duration=int(1000 / 8), loop=0)
+        return out.getvalue()
 
     def strip_steps(self, index: int, oracle: bool = False) -> list[int]:
         """The steps ``film_strip`` draws attempt ``index`` at, in order."""
@@ -422,13 +484,17 @@ class TeachingEpisode:
         from PIL import Image
 
         a = self.find(index, oracle)
-        replay = replay_attempt(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed)
         steps = self.strip_steps(index, oracle)
-        frames = [Image.fromarray(replay.frames[t]) for t in steps]
-        h = round(frames[0].height * STRIP_FRAME_PX / frames[0].width)
-        strip = Image.new("RGB", (STRIP_FRAME_PX * len(frames), h), "white")
+
+        def small(t: int, frame: np.ndarray) -> Any:
+            image = Image.fromarray(frame)
+            return image.resize((STRIP_FRAME_PX, round(image.height * STRIP_FRAME_PX / image.width)))
+
+        drawn, replay = drawn_at(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed, steps, small)
+        frames = [drawn[t] for t in steps]
+        strip = Image.new("RGB", (STRIP_FRAME_PX * len(frames), frames[0].height), "white")
         for i, f in enumerate(frames):
-            strip.paste(f.resize((STRIP_FRAME_PX, h)), (i * STRIP_FRAME_PX, 0))
+            strip.paste(f, (i * STRIP_FRAME_PX, 0))
         return _png(strip)
 
     def still(self, index: int, oracle: bool = False) -> bytes:
@@ -436,8 +502,8 @@ class TeachingEpisode:
         from PIL import Image
 
         a = self.find(index, oracle)
-        return _png(Image.fromarray(still_frame(replay_attempt(self.teacher.domain.name, self.task_id, a.actions,
-                                                                a.reset_seed))))
+        _, replay = drawn_at(self.teacher.domain.name, self.task_id, a.actions, a.reset_seed, (), lambda t, f: f)
+        return _png(Image.fromarray(still_frame(replay)))
 
     def log_rows(self) -> list[dict]:
         """One row per attempt made, undone ones included (``LOG_SCHEMA``), in the order they were made."""
@@ -459,6 +525,45 @@ class TeachingEpisode:
                 "started_at": int(a.started_at * 1e6), "seconds": a.seconds,
             })
         return rows
+
+
+T = TypeVar("T")
+
+
+def drawn_at(domain_name: str, task_id: int, actions: np.ndarray, reset_seed: int, steps: Collection[int],
+             draw: Callable[[int, np.ndarray], T]) -> tuple[dict[int, T], Replay]:
+    """An attempt stepped again from ``reset_seed`` through ``actions`` (``rendering.replay_attempt``),
+    drawn only at ``steps``: each frame is handed to ``draw`` (step, RGB frame) as it is drawn and not
+    kept, so one full-size frame is held at a time, not one a step (101 frames of 1.1 MB a
+    multi-room attempt). Returns what ``draw`` made, by step, and the replay: every step's
+    completion, success and picture points, and the final frame alone (what ``still_frame`` draws)."""
+    domain = get_domain(domain_name)
+    mode = rendering.picture_mode(domain_name)  # as replay_attempt draws: rgb_array, else text, else a card
+    env: Any = domain.make_env(task_id, render_mode=mode) if mode else domain.make_env(task_id)
+    _, info = env.reset(seed=reset_seed)
+    planned = np.asarray(actions).tolist()[: domain.steps_per_attempt]
+    wanted, last = set(steps), len(planned)
+    drawn: dict[int, T] = {}
+    points = [rendering._points(env)]
+    completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
+    final: np.ndarray | None = None
+    for t in range(last + 1):
+        if t > 0:
+            a = planned[t - 1]
+            if not 0 <= a < domain.num_actions:
+                raise UsageError(f"action {a} at step {t - 1} is outside 0..{domain.num_actions - 1}")
+            _, _, _, _, info = env.step(a)
+            completion.append(float(info.get("completion", 0.0)))
+            success.append(bool(info.get("success", False)))
+            points.append(rendering._points(env))
+        if t in wanted or t == last:
+            frame = rendering.draw(env, mode, info)
+            if t in wanted:
+                drawn[t] = draw(t, frame)
+            if t == last:
+                final = frame
+    assert final is not None
+    return drawn, Replay([final], points, np.asarray(completion), np.asarray(success, dtype=bool))
 
 
 def _png(image: Any) -> bytes:
@@ -504,9 +609,207 @@ def episode_log_bytes(episode: TeachingEpisode) -> bytes:
 
 
 def write_episode_log(episode: TeachingEpisode, log_dir: str | Path) -> str:
-    """Write (replace) ``<log_dir>/<episode>.parquet`` atomically; returns its path."""
-    loc = resolve(str(log_dir))
-    loc.makedirs("")
-    name = f"{episode.episode_id}.parquet"
-    loc.write_bytes_atomic(name, episode_log_bytes(episode))
-    return loc.full_url(name)
+    """Write (replace) ``<log_dir>/<episode>.parquet`` atomically (``write_atomic``); returns its
+    path. ``TeachingWriteError`` (and no file changed, no temporary left) when it cannot be written."""
+    log_dir = Path(os.path.abspath(log_dir))
+    ensure_folder(log_dir)
+    path = log_dir / f"{episode.episode_id}.parquet"
+    write_atomic(path, episode_log_bytes(episode))
+    return str(path)
+
+
+# -- files on disk -------------------------------------------------------------------------------
+
+#: Prefix of a file being written (renamed into place once whole): as ``storage.layout.TMP_PREFIX``.
+TMP_PREFIX = "_tmp-"
+#: The lock every writer into a teaching folder holds shared while it runs (``teaching_writer``).
+WRITERS_LOCK = ".writers.lock"
+#: Sub-folders of a teaching folder that writers write into (besides the folder itself).
+TEACHING_SUBFOLDERS = ("log", "gifs")
+#: Age (seconds since last written) past which a temporary is dead even while a writer holds the
+#: folder: a log or a GIF is written in well under a second, so an hour-old one is a dead writer's.
+LEFTOVER_AGE_S = 3600.0
+
+#: ``os.write``, named here so that a test can make the disk full (nothing else can without root).
+_os_write = os.write
+
+
+def _write_error(path: Path, err: OSError, what: str = "cannot write") -> TeachingWriteError:
+    reason = err.strerror or type(err).__name__
+    advice = "; free some space, then try again" if err.errno in NO_SPACE_ERRNOS else ""
+    return TeachingWriteError(f"{what} {path}: {reason}{advice}", err.errno)
+
+
+def ensure_folder(path: str | Path) -> Path:
+    """``path`` as a folder, made with its parents when missing; ``TeachingWriteError`` (one line)
+    when it is a file or cannot be made."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise TeachingWriteError(f"{path} is not a folder (a file has its name)", errno.ENOTDIR)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        if err.errno in (errno.ENOTDIR, errno.EEXIST):
+            raise TeachingWriteError(f"{path} is not a folder (a file is in its way)", err.errno) from None
+        raise _write_error(path, err, "cannot make the folder") from None
+    return path
+
+
+def write_atomic(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path``: to ``_tmp-<hex>-<name>`` beside it (flushed to disk), then renamed
+    over it (``os.replace``), so a reader sees the old file or the new one, never half of one. A
+    failure removes the temporary and raises ``TeachingWriteError`` (one line, the ``errno`` kept)."""
+    path = Path(path)
+    tmp = path.with_name(f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}-{path.name}")
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+    except OSError as err:
+        raise _write_error(path, err) from None
+    try:
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[_os_write(fd, view):]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except BaseException as err:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(err, OSError):
+            raise _write_error(path, err) from None
+        raise
+    return path
+
+
+def check_out_folder(out: str | Path) -> Path:
+    """The teaching folder ``out`` (``--out``), checked before anything is served or taught: a folder
+    (made when missing, with ``log``) in which a file can be made. ``TeachingError`` (one line)
+    otherwise: a file in its place, no permission, a read-only disk."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise TeachingError(f"--out {out} is not a folder: give a folder for the teaching log (OUT/log)")
+    try:
+        ensure_folder(out / "log")
+        probe = out / "log" / f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}-probe"
+        os.close(os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666))
+        os.unlink(probe)
+    except TeachingWriteError as err:
+        raise TeachingError(f"--out {out} cannot hold the teaching log: {err}") from None
+    except OSError as err:
+        raise TeachingError(f"--out {out} cannot hold the teaching log: {err.strerror or err}") from None
+    return out
+
+
+@contextlib.contextmanager
+def teaching_writer(out: str | Path) -> Iterator[Path]:
+    """Write into the teaching folder ``out`` (``check_out_folder``) while inside: its
+    ``.writers.lock`` is held shared (``flock``), so ``teaching_leftovers`` knows a writer is live
+    (the lock goes with the process, however it ends). Waits only while a cleaner holds it."""
+    import fcntl
+
+    out = check_out_folder(out)
+    try:
+        fd = os.open(out / WRITERS_LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+    except OSError as err:
+        raise TeachingError(f"--out {out}: cannot open {WRITERS_LOCK} ({err.strerror or err}); "
+                            "a symbolic link there is not followed") from None
+    try:
+        with contextlib.suppress(OSError):  # a filesystem without locks: leftovers go by age alone
+            fcntl.flock(fd, fcntl.LOCK_SH)
+        yield out
+    finally:
+        os.close(fd)
+
+
+def teaching_leftovers(folder: str | Path, dry_run: bool, min_age_s: float = LEFTOVER_AGE_S) -> list[str]:
+    """The dead temporaries of the teaching folder ``folder`` (``RUN_DIR/teaching``, or a ``--out``),
+    sorted; removed unless ``dry_run``.
+
+    Looked at: the files named ``_tmp-*`` directly in ``folder``, ``folder/log`` and
+    ``folder/gifs`` (nothing deeper, nothing else: a reader skips every ``_``/``.`` name, and other
+    files are not ours to remove). A temporary is dead when no writer holds ``folder``'s
+    ``.writers.lock`` (``teaching_writer``: a ``serve`` or ``teach`` running now; the lock is
+    taken exclusive for the look, so none starts meanwhile), or, while one does, when it was last
+    written ``min_age_s`` or more ago. A symbolic link is never followed nor removed: ``folder``,
+    ``log``, ``gifs`` or a ``_tmp-`` entry being one raises ``TeachingError`` (one line) before
+    anything is removed. A missing ``folder`` has none.
+    """
+    import fcntl
+    import stat
+
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise TeachingError(f"{folder} is a symbolic link: not followed; clean the folder it points to by its own path")
+    if not folder.exists():
+        return []
+    top = _open_folder(folder, None, folder)
+    if top is None:
+        raise TeachingError(f"{folder} is not a folder")
+    try:
+        try:
+            lock = os.open(WRITERS_LOCK, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=top)
+        except FileNotFoundError:
+            lock = None  # no writer ever ran here (or one of before the lock): none is live
+        except OSError as err:
+            if err.errno == errno.ELOOP:
+                raise TeachingError(f"{folder / WRITERS_LOCK} is a symbolic link: not followed; remove it") from None
+            raise
+        try:
+            live = False
+            if lock is not None:
+                try:
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:  # held by a writer (or no locks here): only old temporaries are dead
+                    live = True
+            now = time.time()
+            found: list[tuple[int, str, Path]] = []  # (folder fd, name, path)
+            subs = [(top, folder)]
+            try:
+                for name in TEACHING_SUBFOLDERS:
+                    fd = _open_folder(folder / name, top, folder, name)
+                    if fd is not None:
+                        subs.append((fd, folder / name))
+                for fd, path in subs:
+                    with os.scandir(fd) as entries:
+                        for e in entries:
+                            if not e.name.startswith(TMP_PREFIX):
+                                continue
+                            info = e.stat(follow_symlinks=False)
+                            if stat.S_ISLNK(info.st_mode):
+                                raise TeachingError(f"{path / e.name} is a symbolic link, not a temporary this program "
+                                                    "wrote: not followed nor removed; look at it yourself")
+                            if stat.S_ISREG(info.st_mode) and (not live or now - info.st_mtime >= min_age_s):
+                                found.append((fd, e.name, path / e.name))
+                if not dry_run:
+                    for fd, name, _ in found:
+                        with contextlib.suppress(FileNotFoundError):  # gone meanwhile: fine
+                            os.unlink(name, dir_fd=fd)
+            finally:
+                for fd, _ in subs[1:]:
+                    os.close(fd)
+        finally:
+            if lock is not None:
+                os.close(lock)
+    finally:
+        os.close(top)
+    return sorted(str(p) for _, _, p in found)
+
+
+def _open_folder(path: Path, parent_fd: int | None, top: Path, name: str | None = None) -> int | None:
+    """A descriptor of the folder ``path`` (``name`` in ``parent_fd``), not following a symbolic
+    link (``TeachingError``); None when it is missing or not a folder."""
+    try:
+        if name is None:
+            return os.open(path, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC)
+        return os.open(name, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW | os.O_CLOEXEC, dir_fd=parent_fd)
+    except FileNotFoundError:
+        return None
+    except OSError as err:
+        if err.errno == errno.ELOOP or (err.errno == errno.ENOTDIR and path.is_symlink()):
+            raise TeachingError(f"{path} is a symbolic link: not followed; the temporaries of {top} are "
+                                "looked for in its own folders only") from None
+        if err.errno == errno.ENOTDIR:
+            return None
+        raise

@@ -14,6 +14,7 @@ from torch import nn
 
 from gpl_dist.models.gpl import GPLPolicy
 from gpl_dist.models.mivoa import MIVOA_VARIANTS, MIVOAPolicy
+from gpl_dist.models.sizes import SIZE_FIELDS, Sizes
 from gpl_dist.roles import DomainSpec
 
 #: The networks ``build_model`` makes (``gpl_dist.roles.Policy``).
@@ -24,17 +25,18 @@ def build_model(domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 1
                 policy_batchnorm: bool = False, paraphrases: bool = False,
                 linear_encodings: bool = False, conv_batchnorm: bool = False,
                 encoder_layernorm: bool = False, correction_width: int = 0,
-                encoder_activation: str = "relu") -> "PolicyNetwork":
+                encoder_activation: str = "relu", sizes: Sizes | None = None) -> "PolicyNetwork":
     """A freshly initialised model of ``variant`` (deterministic when ``seed`` is given): a
     ``GPLPolicy``, or for the MIVOA variants a ``gpl_dist.models.mivoa.MIVOAPolicy``; with
     ``paraphrases``, it reads the words of the domain's training paraphrases too;
     ``linear_encodings``, ``encoder_layernorm`` and ``correction_width`` (GPL's encoders; MIVOA has its own),
-    ``conv_batchnorm`` (every grid state encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``."""
+    ``conv_batchnorm`` (every grid state encoder, MIVOA's too): see ``gpl_dist.config.ModelConfig``;
+    ``sizes``: layer sizes in place of the domain's ``model_sizes``."""
     def make() -> "PolicyNetwork":
         if variant in MIVOA_VARIANTS:
-            return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm)
+            return MIVOAPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, conv_batchnorm, sizes)
         return GPLPolicy(domain, variant, embedding_dim, policy_batchnorm, paraphrases, linear_encodings, conv_batchnorm,
-                         encoder_layernorm, correction_width, encoder_activation)
+                         encoder_layernorm, correction_width, encoder_activation, sizes)
 
     if seed is not None:
         with torch.random.fork_rng(devices=[]):
@@ -50,7 +52,13 @@ def build_model_from_config(domain: DomainSpec, model_cfg, seed: int | None = No
                        policy_batchnorm=model_cfg.policy_batchnorm, paraphrases=model_cfg.paraphrases,
                        linear_encodings=model_cfg.linear_encodings, conv_batchnorm=model_cfg.conv_batchnorm,
                        encoder_layernorm=model_cfg.encoder_layernorm, correction_width=model_cfg.correction_width,
-                       encoder_activation=model_cfg.encoder_activation)
+                       encoder_activation=model_cfg.encoder_activation, sizes=model_sizes(domain, model_cfg))
+
+
+def model_sizes(domain: DomainSpec, model_cfg) -> Sizes:
+    """The layer sizes a run's ``model`` section gives: the domain's, with each size the section
+    sets (``model.policy_mlp`` ...) in its place."""
+    return domain.model_sizes.overridden({name: getattr(model_cfg, name, None) for name in SIZE_FIELDS})
 
 
 def state_dict_to_numpy(model: nn.Module) -> dict[str, np.ndarray]:

@@ -83,13 +83,13 @@ class GPLPolicy(nn.Module):
     def __init__(self, domain: DomainSpec, variant: str = "gpl", embedding_dim: int = 16,
                  policy_batchnorm: bool = False, paraphrases: bool = False, linear_encodings: bool = False,
                  conv_batchnorm: bool = False, encoder_layernorm: bool = False, correction_width: int = 0,
-                 encoder_activation: str = "relu"):
+                 encoder_activation: str = "relu", sizes: Sizes | None = None):
         super().__init__()
         act = encoder_activation
         self.domain_name = domain.name
         relu_out = not linear_encodings  # the last layer of each conditioning encoder
         self.variant = variant
-        sizes = domain.model_sizes
+        sizes = sizes or domain.model_sizes
         if correction_width:
             sizes = dataclasses.replace(sizes, correction_mlp=sizes.correction_mlp[:-1] + (correction_width,))
         #: the words this network reads (``DomainSpec.vocabulary_for``): text is encoded with it

@@ -28,6 +28,7 @@ import torch
 from torch import nn
 
 from gpl_dist.models.layers import Conditioning, GridStateEncoder, VectorStateEncoder, grid_categories, mlp
+from gpl_dist.models.sizes import Sizes
 from gpl_dist.roles import DomainSpec
 from gpl_dist.variants import MIVOA
 
@@ -76,12 +77,13 @@ class MIVOAPolicy(nn.Module):
     numeric_full_information = False
 
     def __init__(self, domain: DomainSpec, variant: str = "mivoa", embedding_dim: int = 16,
-                 policy_batchnorm: bool = False, paraphrases: bool = False, conv_batchnorm: bool = False):
+                 policy_batchnorm: bool = False, paraphrases: bool = False, conv_batchnorm: bool = False,
+                 sizes: Sizes | None = None):
         super().__init__()
         if variant not in MIVOA_VARIANTS:
             raise ValueError(f"MIVOA variant must be one of {MIVOA_VARIANTS}, got {variant!r}")
         self.domain_name, self.variant, self.num_actions = domain.name, variant, domain.num_actions
-        sizes, vocab = domain.model_sizes, domain.vocabulary_for(paraphrases)
+        sizes, vocab = sizes or domain.model_sizes, domain.vocabulary_for(paraphrases)
         self.vocabulary = vocab  # the words this network reads: text is encoded with it
         self.instruction = InstructionLSTM(vocab.size, vocab.pad_id, embedding_dim, sizes.instruction_mlp[-1])
         if len(domain.obs_shape) == 3:

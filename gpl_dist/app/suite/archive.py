@@ -86,9 +86,17 @@ def _same_files(src: Path, dst: Path, names: list[Path]) -> bool:
     return held == sorted(names) and all(filecmp.cmp(src / n, dst / n, shallow=False) for n in names)
 
 
+def _refuse_links(src: Path, names: list[Path]) -> None:
+    """``EvidenceError`` when a file of ``names`` under ``src`` is, or passes through, a symbolic link."""
+    linked = [n for n in names if any((src / p).is_symlink() for p in [n, *n.parents])]
+    if linked:
+        raise EvidenceError(f"{src / linked[0]} is (or passes through) a symbolic link: never followed, nothing copied")
+
+
 def _put_run(src: Path, dst: Path, names: list[Path]) -> None:
     """Make ``dst`` hold exactly ``names`` copied from ``src``, whole: staged beside it, then
     swapped in (a killed copy leaves the old run dir, or none, never a mix of two versions)."""
+    _refuse_links(src, names)
     staging, old = dst.with_name(f".{dst.name}.staging"), dst.with_name(f".{dst.name}.old")
     shutil.rmtree(staging, ignore_errors=True)
     for name in names:
@@ -100,10 +108,36 @@ def _put_run(src: Path, dst: Path, names: list[Path]) -> None:
     shutil.rmtree(old, ignore_errors=True)
 
 
-def _archived_files(root: Path) -> list[str]:
-    """Every file of an archive, relative to it, but its checksums and temporaries."""
-    return sorted(p.relative_to(root).as_posix() for p in root.rglob("*")
-                  if p.is_file() and p.name != CHECKSUMS and not any(part.startswith(".") for part in p.relative_to(root).parts))
+#: What an archive may hold: data only (records, configs, metrics, weights read with weights_only).
+#: A plug-in's code (``.py``, compiled modules, ``.pth``), or anything else, is refused: reading an
+#: archive must never be a way to bring code onto a machine.
+ARCHIVE_SUFFIXES = (".json", ".jsonl", ".yaml", ".pt")
+
+
+def _archived_files(root: Path, strict: bool = True) -> list[str]:
+    """Every file of an archive, relative to it, but its checksums and temporaries; ``EvidenceError``
+    for a symbolic link (never followed) or a file that is not data (``ARCHIVE_SUFFIXES``). Not
+    ``strict`` (a suite's output folder, with its buffers and plots, read as an archive): every
+    file but links, which are left out, never followed."""
+    if not root.is_dir():
+        return []
+    out = []
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=False):
+        for name in [*dirnames, *filenames]:
+            path = Path(dirpath) / name
+            rel = path.relative_to(root)
+            if any(part.startswith(".") for part in rel.parts):
+                continue
+            if path.is_symlink():
+                if not strict:
+                    continue
+                raise EvidenceError(f"{path} is a symbolic link: an archive holds real files only (never followed)")
+            if name in filenames and name != CHECKSUMS:
+                if strict and path.suffix not in ARCHIVE_SUFFIXES:
+                    raise EvidenceError(f"{path} is not data an archive may carry (only {', '.join(ARCHIVE_SUFFIXES)} "
+                                        "files: never code such as a domain plug-in)")
+                out.append(rel.as_posix())
+    return sorted(out)
 
 
 def archive_runs(suite_out: str | Path, archive: str | Path, log=print) -> int:
@@ -116,8 +150,9 @@ def archive_runs(suite_out: str | Path, archive: str | Path, log=print) -> int:
     if src_root.resolve() == dst_root.resolve():
         return 0
     runs = _evaluated_runs(src_root)
-    for run_dir in runs:  # before anything changes: nothing inconsistent or edited is archived
+    for run_dir in runs:  # before anything changes: nothing inconsistent, edited or linked is archived
         check_run(run_dir)
+        _refuse_links(run_dir, _run_files(run_dir))
     extra = sorted((src_root / "rl").rglob("*.json")) if (src_root / "rl").is_dir() else []
     if (src_root / "suite.yaml").is_file():
         extra.append(src_root / "suite.yaml")
@@ -156,13 +191,14 @@ def check_archive(archive: Path, log=print) -> dict[str, str] | None:
     and every run's evidence (``check_run``); returns its sums (None for an archive made before
     checksums existed, checked for consistency only, ``log`` says so)."""
     sums = read_checksums(archive)
+    # an archive (it has checksums) holds data only and no link; a suite's output folder is read as is
+    files = _archived_files(archive, strict=sums is not None)
     if sums is None:
         log(f"note: {archive} has no {CHECKSUMS} (archived before checksums existed): its eval files are checked "
             "for consistency only")
     else:
         check_checksums(archive, sums)
-        unlisted = [f for f in _archived_files(archive) if f not in sums and (f.endswith(".json") or f.endswith(".yaml")
-                                                                            or f.endswith(".jsonl") or f.endswith(".pt"))]
+        unlisted = [f for f in files if f not in sums and f.endswith(ARCHIVE_SUFFIXES)]
         if unlisted:
             raise EvidenceError(f"{archive / unlisted[0]} has no checksum in {archive / CHECKSUMS} (added after archiving?)")
     for run_dir in _evaluated_runs(archive):
@@ -179,7 +215,7 @@ def restore_runs(archive: str | Path, suite_out: str | Path, log=print) -> list[
     src_root, dst_root = Path(archive), Path(suite_out)
     if not src_root.is_dir():
         raise RunDirError(f"no archive at {src_root}")
-    check_archive(src_root, log)
+    check_archive(src_root, log)  # data only, no link, every file as summed
     restored = []
     for run_dir in _evaluated_runs(src_root):
         target = dst_root / run_dir.relative_to(src_root)

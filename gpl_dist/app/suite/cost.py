@@ -70,6 +70,16 @@ class SuiteCost:
         """The sum of every prediction there is (a lower bound when some have none)."""
         return sum(r.seconds or 0.0 for r in self.runs) + self.rl_seconds
 
+    def at_once_seconds(self, slots: int) -> float:
+        """The wall time of the runs left when ``slots`` of them run at once (``suite run`` on this
+        machine: ``gpl_dist.app.suite.cluster.local_plan``), longest first into the slot free first,
+        each at the pace its prediction was measured at, then the RL jobs (a lower bound when some
+        have no prediction)."""
+        loads = [0.0] * max(1, slots)
+        for seconds in sorted((r.seconds or 0.0 for r in self.runs), reverse=True):
+            loads[loads.index(min(loads))] += seconds
+        return max(loads) + self.rl_seconds
+
     @property
     def complete(self) -> bool:
         """Whether every run and job left has a prediction."""

@@ -125,13 +125,25 @@ def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings()
 
 def suite_run_dirs(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None) -> list[Path]:
     """The run dirs ``suite_out/<entry>/seed<k>`` that have a ``suite-run.json``, in order;
-    optionally only ``entries`` and ``seeds``."""
+    optionally only ``entries`` and ``seeds``. A folder with no such run fails in one line that
+    says what layout is expected (``RunDirError``)."""
     root = Path(suite_out)
     if not root.is_dir():
         raise RunDirError(f"no suite output at {root}")
-    return [record.parent for record in sorted(root.glob("*/seed*/suite-run.json"))
-            if (entries is None or record.parent.parent.name in entries)
-            and (seeds is None or int(record.parent.name.removeprefix("seed")) in seeds)]
+    records = sorted(root.glob("*/seed*/suite-run.json"))
+    if not records:
+        raise RunDirError(f"no suite runs under {root}: expected {root}/<entry>/seed<k>/ run dirs, each with the "
+                          "suite-run.json, config.yaml, metrics.jsonl and checkpoints/ that `gpl-dist suite run SUITE "
+                          "--out OUT` writes")
+    chosen = [record.parent for record in records
+              if (entries is None or record.parent.parent.name in entries)
+              and (seeds is None or int(record.parent.name.removeprefix("seed")) in seeds)]
+    if not chosen:
+        held = ", ".join(sorted({r.parent.parent.name for r in records}))
+        wanted = (f"entries {', '.join(sorted(entries or ())) or 'any'}, "
+                  f"seeds {', '.join(map(str, sorted(seeds or ()))) or 'any'}")
+        raise RunDirError(f"no suite run under {root} is of the selected {wanted}: it holds entries {held}")
+    return chosen
 
 
 def compute_curves(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,

@@ -89,7 +89,7 @@ def trained_run_dir(out: str | Path, entry: str) -> Path:
 
     run_dir = Path(out) / entry / "seed0"
     trained = rounds_trained(run_dir)
-    if not trained or trained < load_config(run_dir / "config.yaml").training.num_rounds:
+    if not trained or trained < load_config(run_dir / "config.yaml", plugins="none").training.num_rounds:
         raise NotTrainedYet(f"{run_dir} has not finished training yet: run 'gpl-dist suite run ... --only {entry} "
                             "--seeds 0' first")
     return run_dir

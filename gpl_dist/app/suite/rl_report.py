@@ -9,6 +9,7 @@ from typing import Mapping
 
 from gpl_dist.app.suite.rl_jobs import load_results
 from gpl_dist.app.suite.rl_plan import AttemptsJob, RLPlan, attempts_jobs, rl_jobs
+from gpl_dist.atomic import savefig_atomic
 from learner.rl import RL_METHODS, log_points, summarize
 
 
@@ -156,5 +157,5 @@ def _plot(fig_rows: dict[str, dict[str, tuple]], png: Path) -> None:
         ax.legend(loc="lower right", fontsize=7, title="median over tasks; band, bars: quartiles", title_fontsize=7)
     fig.tight_layout()
     png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png)
+    savefig_atomic(fig, png)
     plt.close(fig)

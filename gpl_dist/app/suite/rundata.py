@@ -21,6 +21,7 @@ from pathlib import Path
 
 from gpl_dist.config import load_config
 from gpl_dist.corrections import CONSTANT_KINDS
+from gpl_dist.domains import domain_names
 from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
@@ -212,21 +213,62 @@ def run_budget(run_dir: Path) -> RunBudget:
                      params, sum(m.train_seconds for m in rounds), sum(m.collection_seconds for m in rounds))
 
 
-def run_valid_split(run_dir: Path) -> str | None:
-    """The split the run is chosen on: the valid split of the training split its ``config.yaml``
-    names (``gpl_dist.splits.valid_split``); None when that has none. ``load_config`` registers a
-    domain of the user's own module and fills in the domain's default training split."""
+@dataclass(frozen=True)
+class RunSetup:
+    """What a run's ``config.yaml`` says the report groups and labels it by.
+
+    Attributes:
+        domain: the run's domain (``env.domain``).
+        rounds: the DAgger rounds it was configured to train (``training.num_rounds``).
+        train_split: the split it trained on (the domain's default filled in where known).
+        known: whether this process knows the domain without importing its module (a built-in,
+            installed or registered one); where not, the domain's splits are not known here.
+        valid_split: the split the run is chosen on (``gpl_dist.splits.valid_split``); None when
+            its training split has none, or the domain is not known.
+    """
+
+    domain: str
+    rounds: int
+    train_split: str
+    known: bool
+    valid_split: str | None
+
+
+#: What each config file says (domain, rounds, training split), keyed by its path, modification
+#: time and size: a report reads each run's config once, however many of its tables ask.
+_CONFIGS: dict[tuple[str, int, int], tuple[str, int, str]] = {}
+
+
+def run_setup(run_dir: Path) -> RunSetup:
+    """``RunSetup`` of one run dir, from its ``config.yaml`` read with no plug-in imported
+    (``load_config(..., plugins="none")``): never from the name of its entry. Whether the domain
+    is known is this process's answer now (a domain registered later is known from then on)."""
     path = run_dir / "config.yaml"
     try:
-        cfg = load_config(path)
+        stat = path.stat()
+        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+        if key not in _CONFIGS:
+            cfg = load_config(path, plugins="none")
+            _CONFIGS[key] = (cfg.env.domain, cfg.training.num_rounds, cfg.env.train_split)
     except (OSError, UserError) as err:
-        raise RunDirError(f"{path}: cannot read the run's domain and training split ({type(err).__name__}: {err})") from None
-    return valid_split(cfg.env.domain, cfg.env.train_split)
+        raise RunDirError(f"{path}: cannot read the run's domain, rounds and training split "
+                          f"({type(err).__name__}: {err})") from None
+    domain, rounds, train_split = _CONFIGS[key]
+    known = domain in domain_names()
+    return RunSetup(domain, rounds, train_split, known, valid_split(domain, train_split) if known else None)
 
 
-def learning_curve(run_dir: Path) -> LearningCurve:
+def run_valid_split(run_dir: Path, unknown: str | None = None) -> str | None:
+    """The split the run is chosen on: the valid split of the training split its ``config.yaml``
+    names (``gpl_dist.splits.valid_split``); None when that has none. Reading a run imports no
+    plug-in: for a domain this process does not know without its module, ``unknown``."""
+    setup = run_setup(run_dir)
+    return setup.valid_split if setup.known else unknown
+
+
+def learning_curve(run_dir: Path, setup: RunSetup | None = None) -> LearningCurve:
     """``LearningCurve`` of one run dir (its valid part from ``CURVE_FILE`` when present and
-    measured on the run's valid split)."""
+    measured on the run's valid split); ``setup``: the run's ``run_setup``, where already read."""
     rounds = read_metrics(run_dir)
     valid: tuple[tuple[float, ...], ...] = ()
     valid_rounds: tuple[int, ...] = ()
@@ -240,7 +282,8 @@ def learning_curve(run_dir: Path) -> LearningCurve:
             measured = str((payload.get("settings") or {}).get("split", "?"))  # "?": a file from before settings
         except (ValueError, KeyError, TypeError) as err:
             raise RunDirError(f"{path}: not a learning curve ({type(err).__name__}: {err})") from None
-        if measured != run_valid_split(run_dir):
+        setup = setup or run_setup(run_dir)
+        if measured != (setup.valid_split if setup.known else measured):
             valid, valid_rounds, off_split = (), (), measured
     return LearningCurve(tuple(m.round_index for m in rounds), tuple(tuple(m.completion_by_corrections) for m in rounds),
                          valid, valid_rounds, off_split)

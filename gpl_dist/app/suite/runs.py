@@ -4,6 +4,7 @@ execution (train, or resume, then evaluate), the same serially and inside a Ray 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import os
@@ -107,7 +108,7 @@ def trained_as_here(run: SuiteRun, here: str) -> bool | None:
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
     """A run dir made by another version of its entry is refused: its results would be mixed."""
     saved = run.run_dir / "config.yaml"
-    if saved.is_file() and results_dict(load_config(saved)) != results_dict(cfg):
+    if saved.is_file() and results_dict(load_config(saved, plugins="none")) != results_dict(cfg):
         raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
                           "(the suite file or the base config changed): use another --out, or remove that run dir")
 
@@ -136,9 +137,11 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
 
 
 def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: bool = False, progress: bool = True,
-            log=print, commit: str | None = None) -> dict:
+            log=print, commit: str | None = None, workers: int | None = None, on_this_machine: bool = False) -> dict:
     """Bring one run to ``done``: train (fresh or resumed), then every evaluation not yet written.
-    ``commit`` names the code in the records (default: this process's ``code_commit()``)."""
+    ``commit`` names the code in the records (default: this process's ``code_commit()``);
+    ``workers``: its rollout actors in place of the config's (how fast it collects, never what);
+    ``on_this_machine``: ``address`` is a local cluster of this machine (its numerics are this machine's)."""
 
     commit = commit or code_commit()
     state = run_state(run, suite)
@@ -148,10 +151,12 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
                                           "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
-        _started(run.run_dir, record, commit, machine_numerics(run, suite, address))
+        _started(run.run_dir, record, commit, machine_numerics(run, suite, None if on_this_machine else address))
         t0 = time.perf_counter()
-        run_training(run.config(suite), run.run_dir, address=address, serial=serial, resume=state == "resume",
-                     progress=progress)
+        cfg = run.config(suite)
+        if workers is not None:
+            cfg = dataclasses.replace(cfg, collection=dataclasses.replace(cfg.collection, num_workers=workers))
+        run_training(cfg, run.run_dir, address=address, serial=serial, resume=state == "resume", progress=progress)
         record["train_seconds"] += time.perf_counter() - t0
         _write_record(run.run_dir, record)
     todo = [name for name in run.entry.evaluations if name not in record["evaluations"]]

@@ -8,7 +8,8 @@ A suite file (``configs/suites/paper.yaml``) names
   ``evaluations`` to run on its final checkpoint (the first one becomes the run's ``eval`` section).
 
 ``gpl-dist suite run`` trains and evaluates every (entry, training seed) into
-``OUT/<entry>/seed<k>/`` (an ordinary run dir), one after another. Each run's state is read from
+``OUT/<entry>/seed<k>/`` (an ordinary run dir), as many at once as keep this machine's cores
+busy (``gpl_dist.app.suite.schedule``), or on a Ray cluster. Each run's state is read from
 its files, so a killed suite loses at most the round in flight: a run with checkpoints resumes
 (``train --resume``), a trained run is only evaluated, a finished one is skipped. A run whose entry
 changed since it ran is refused, never mixed. ``OUT/<entry>/seed<k>/suite-run.json`` records the
@@ -24,6 +25,7 @@ The format, in one place (unknown keys fail in one line before anything runs)::
         set: {model.variant: gpl}        # dotted config keys; no eval.* and no seed keys
         seeds: [0, 1, 2]
         evaluations: [test]
+    reference: multiroom-gpl             # optional: the entry the report tests every other against
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gpl_dist.app.suite.rl_plan import parse_rl_plan
+from gpl_dist.atomic import write_atomic
 from gpl_dist.config import (
     ConfigError,
     EvalConfig,
@@ -94,6 +97,10 @@ class Suite:
     entries: tuple[Entry, ...]
     rl: Any = None
     """The ``rl`` section (``gpl_dist.app.suite.rl_plan.RLPlan``): RL per test task against GPL and GPR; None when absent."""
+    plugins: str = "own"
+    """Whether its configs' domain modules are imported (``gpl_dist.config.PLUGIN_POLICIES``): ``none`` to read only."""
+    reference: str | None = None
+    """The entry the report holds every other against (Welch's test); None: the report names none."""
 
     def entry(self, name: str) -> Entry:
         for e in self.entries:
@@ -112,11 +119,13 @@ class SuiteRun:
 
     def config(self, suite: Suite, evaluation: str | None = None) -> RunConfig:
         """The run's resolved config: base, the entry's overrides, the seed, and an evaluation's
-        settings as its ``eval`` section (its first evaluation unless ``evaluation`` is named)."""
+        settings as its ``eval`` section (its first evaluation unless ``evaluation`` is named).
+        The suite's base configs are the user's own: their domain module is imported unless the
+        suite was loaded to be read only (``Suite.plugins``)."""
         overrides = dict(self.entry.overrides)
         overrides["seed"] = str(self.seed)
         overrides.update(suite.evaluations[evaluation or self.entry.evaluations[0]].overrides())
-        return load_config(self.entry.base, overrides)
+        return load_config(self.entry.base, overrides, plugins=suite.plugins)
 
 
 def _expect(ok: bool, where: str, message: str) -> None:
@@ -165,9 +174,14 @@ def _entry(where: str, name: str, raw: Any, folder: Path, evaluations: Mapping[s
     return Entry(name, (folder / raw["base"]).resolve(), overrides, check_seeds(f"{where}.seeds", raw["seeds"]), tuple(names))
 
 
-def load_suite(path: str | Path) -> Suite:
+#: Folders of a suite's output (and of its archive) that are not entries: an entry may not take their name.
+RESERVED_NAMES = {"rl": "the RL comparison's results, OUT/rl/", "runs": "a report's archive of runs, REPORT/runs/"}
+
+
+def load_suite(path: str | Path, plugins: str = "own") -> Suite:
     """Parse and check a suite file; every entry's config is built once, so a bad key or choice
-    fails here, in one line, before anything runs."""
+    fails here, in one line, before anything runs. ``plugins="none"``: to read only (``suite
+    status``), importing no domain module its configs name."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"suite file not found: {path}")
@@ -175,7 +189,7 @@ def load_suite(path: str | Path) -> Suite:
         raw = load_yaml_text(path.read_text(), path)
     except UnicodeDecodeError:
         raise ConfigError(f"{path} is not a text file") from None
-    _keys(str(path), raw, {"evaluations", "entries", "rl"}, {"evaluations", "entries"})
+    _keys(str(path), raw, {"evaluations", "entries", "rl", "reference"}, {"evaluations", "entries"})
     for section in ("evaluations", "entries"):
         _expect(isinstance(raw[section], dict) and bool(raw[section]), f"{path}: {section}",
                 f"expected a mapping of names, got {type(raw[section]).__name__}")
@@ -184,12 +198,18 @@ def load_suite(path: str | Path) -> Suite:
     for name, spec in raw["entries"].items():
         _expect(isinstance(name, str) and name.replace("-", "").replace("_", "").isalnum(), f"{path}: entries",
                 f"an entry's name is letters, digits, '-' and '_' (it names a folder), got {bounded_repr(name)}")
+        _expect(name not in RESERVED_NAMES, f"{path}: entries.{name}",
+                f"'{name}' is the name of the suite's own folder ({RESERVED_NAMES.get(name)}): rename the entry")
         entries.append(_entry(f"{path}: entries.{name}", name, spec, path.parent, evaluations))
     rl = None
     if "rl" in raw:
 
         rl = parse_rl_plan(f"{path}: rl", raw["rl"], tuple(e.name for e in entries))
-    suite = Suite(path, evaluations, tuple(entries), rl)
+    reference = raw.get("reference")
+    names = [e.name for e in entries]
+    _expect(reference is None or (isinstance(reference, str) and reference in names), f"{path}: reference",
+            f"expected the name of one of its entries ({', '.join(names)[:200]}), got {bounded_repr(reference)}")
+    suite = Suite(path, evaluations, tuple(entries), rl, plugins, reference)
     for e in suite.entries:
         for name in e.evaluations:  # every evaluation's split too, not only the run's own
             cfg = SuiteRun(e, e.seeds[0], Path(".")).config(suite, name)  # fails in one line on a bad key or choice
@@ -215,4 +235,4 @@ def keep_copy(suite: Suite, out: str | Path) -> None:
     """Copy the suite file to ``OUT/suite.yaml``: the plan the report reads (its rows' seeds not
     run yet, the RL results that are jobs of its ``rl`` section), archived with the report."""
     Path(out).mkdir(parents=True, exist_ok=True)
-    (Path(out) / "suite.yaml").write_text(suite.path.read_text())
+    write_atomic(Path(out) / "suite.yaml", suite.path.read_text())

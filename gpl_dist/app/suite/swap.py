@@ -71,6 +71,7 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
 def compute_swaps(suite_out: str | Path, entries: set[str] | None = None, seeds: set[int] | None = None,
                   settings: CurveSettings = CurveSettings(), log=print) -> list[Path]:
     """``compute_swap`` for every run of ``curves.suite_run_dirs`` (optionally only ``entries``
-    and ``seeds``)."""
+    and ``seeds``); a folder without ``<entry>/seed<k>/suite-run.json`` run dirs, or a selection of
+    none of them, fails in one line saying so (``RunDirError``)."""
     return [out for run_dir in suite_run_dirs(suite_out, entries, seeds)
             if (out := compute_swap(run_dir, settings, log)) is not None]

@@ -1,0 +1,132 @@
+"""A run dir's upkeep, for ``gpl-dist inspect``, ``verify`` and ``clean``: where its buffer is, its
+checks beyond the buffer (identity, checkpoints), and the leftovers of dead writers.
+
+Nothing here imports a run's plug-in (its config is read with ``plugins="none"``) or follows a
+symbolic link out of the run: the buffer's own walks refuse links (``storage.fs``), and a linked
+``checkpoints/`` folder is refused before anything is listed or removed.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from gpl_dist.config import load_config
+from gpl_dist.errors import RunDirError
+from storage import clean_leftovers
+from storage.errors import LinkError
+from storage.lease import Lease
+from storage.manifest import is_buffer
+from storage.verify import VerifyReport, verify_buffer
+
+
+def buffer_root(path: str) -> str:
+    """A run dir's buffer root (its config may point elsewhere), or ``path`` itself when it is a
+    buffer; ``RunDirError`` when ``path`` holds neither."""
+    p = Path(path)
+    if (p / "config.yaml").is_file():
+        location = load_config(p / "config.yaml", plugins="none").buffer.location
+        return location or str(p / "buffer")
+    if "://" not in path and not p.exists():
+        raise RunDirError(f"no run directory or buffer at {path}")
+    for candidate in ([path] if "://" in path else [str(p / "buffer"), path]):
+        if is_buffer(candidate):
+            return candidate
+    raise RunDirError(f"{path} holds no gpl-dist run or buffer (no config.yaml, manifests/ or _gpl-dist-buffer.json)")
+
+
+def no_buffer_note(run_dir: str, root: str) -> str | None:
+    """For a run dir without a buffer (a run put back by ``suite restore`` has none), what it holds
+    instead; None when it has one (or is no run dir)."""
+    if "://" in root or Path(root).exists() or not (Path(run_dir) / "config.yaml").is_file():
+        return None
+    restored = (Path(run_dir) / "suite-run.json").is_file()
+    return (f"{run_dir} has no buffer (no {root}): "
+            + ("runs restored by 'gpl-dist suite restore' carry no buffer, only " if restored else "it holds only ")
+            + "the config, metrics.jsonl, eval files and checkpoints. Teach or evaluate it (gpl-dist teach/serve/eval "
+            f"--run-dir {run_dir}); a buffer comes only from training (gpl-dist train --config {run_dir}/config.yaml "
+            "--run-dir NEW_DIR)")
+
+
+def report_lines(report: VerifyReport) -> list[str]:
+    """What ``verify`` prints of a buffer's report: each problem, the totals, commits in progress."""
+    lines = [f"BAD  {p.path}: {p.message}" for p in report.problems]
+    quarantined = f", quarantined rounds {list(report.quarantined)}" if report.quarantined else ""
+    lines.append(f"checked {report.num_files} committed files ({report.num_bytes / 2**20:.1f} MiB) of rounds "
+                 f"{list(report.rounds)}{quarantined}: {len(report.problems)} problem(s)")
+    lines += [f"round {r}: a commit in progress (a driver stopped mid-commit); train --resume or clean finishes it"
+              for r in report.in_progress]
+    return lines
+
+
+@dataclass(frozen=True)
+class RunChecks:
+    """A run dir's checks beyond its buffer: the run id its buffer must carry (None for a bare
+    buffer), a note when it has no ``run.json``, and a ``path: what`` line per problem: a
+    ``config.yaml`` edited after the run wrote it, a checkpoint unreadable or of another run."""
+
+    run_id: str | None
+    note: str | None
+    problems: tuple[str, ...]
+
+
+def run_checks(path: str, root: str) -> RunChecks:
+    """``RunChecks`` of the run dir ``path`` whose buffer is at ``root`` (``learner.identity``)."""
+    if not (Path(path) / "config.yaml").is_file():
+        return RunChecks(None, None, ())
+    from learner.identity import checkpoint_problems, config_problems, resolve_identity
+
+    identity = resolve_identity(path, root)
+    note = (f"note: {path} has no run.json (made before run identities): checked as run {identity.run_id[:64]}"
+            if identity.legacy else None)
+    problems = config_problems(path) + checkpoint_problems(path, identity.run_id)
+    return RunChecks(identity.run_id, note, tuple(f"{p}: {what}" for p, what in problems))
+
+
+@dataclass(frozen=True)
+class Cleaned:
+    """What ``clean`` removed (or would, with ``dry_run``), relative to the buffer root or as paths,
+    and how many paths under ``data/`` no manifest lists (kept: committed data is never removed)."""
+
+    removed: tuple[str, ...]
+    unlisted: int
+
+
+def clean_run(run_dir: str, dry_run: bool = False) -> Cleaned:
+    """Remove the leftovers of dead writers: the buffer's (``storage.clean_leftovers``), the run
+    dir's own temporaries (``learner.checkpoint.dead_temporaries``) and its teaching logs' and
+    GIFs' (``gpl_dist.app.teaching.teaching_leftovers``), under the leases and the teaching
+    folder's lock. A symbolic link where it would look is refused before anything is removed."""
+    for folder in ("checkpoints",):  # a linked folder would make its listing someone else's files
+        linked = Path(run_dir) / folder
+        if linked.is_symlink():
+            raise LinkError(f"{folder} in {run_dir} is a symbolic link (to {os.readlink(linked)[:200]}); gpl-dist never "
+                            "follows a link inside a run: nothing removed", folder)
+    from gpl_dist.app.teaching import teaching_leftovers
+
+    root = buffer_root(run_dir)
+    teaching = Path(run_dir) / "teaching"
+    if teaching.is_symlink():  # refused before anything is removed, as the buffer's and checkpoints' links are
+        raise LinkError(f"teaching in {run_dir} is a symbolic link (to {os.readlink(teaching)[:200]}); gpl-dist never "
+                        "follows a link inside a run: nothing removed", "teaching")
+    teaching_leftovers(teaching, dry_run=True)  # a link inside it is refused here, before anything is removed
+    removed = clean_leftovers(root, dry_run=dry_run) + _run_dir_temporaries(run_dir, dry_run)
+    removed += teaching_leftovers(teaching, dry_run=dry_run)
+    unlisted = sum(p.kind == "unlisted" for p in verify_buffer(root, checksums=False).problems)
+    return Cleaned(tuple(removed), unlisted)
+
+
+def _run_dir_temporaries(path: str, dry_run: bool) -> list[str]:
+    """Temporary files of dead writers in a run dir and its checkpoints, removed under the run dir's
+    lease (no driver can be writing them meanwhile); [] for a bare buffer."""
+    if not (Path(path) / "config.yaml").is_file():
+        return []
+    from learner.checkpoint import dead_temporaries
+
+    with Lease(path, "gpl-dist clean"):
+        found = [p for p in dead_temporaries(path) if not p.is_symlink()]
+        if not dry_run:
+            for p in found:
+                p.unlink(missing_ok=True)
+    return [str(p) for p in found]

@@ -1,0 +1,51 @@
+"""Files a reader may see are written whole or not at all.
+
+``write_atomic`` writes through a temporary name beside the final one (``.<name>.tmp-<pid>-<thread>``,
+hidden from pyarrow and from globs of the final names), flushes it to disk and renames it into
+place; a failure removes the temporary and raises ``OSError`` naming the file, so the previous
+version stays whole. ``savefig_atomic`` does the same for a matplotlib figure.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+
+def temporary_name(path: Path) -> Path:
+    """The temporary beside ``path`` that this process and thread writes (its suffix kept, so a
+    writer that picks its format from the suffix still can)."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}-{threading.get_ident()}{path.suffix}")
+
+
+def _replace_with(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
+    path = Path(path)
+    tmp = temporary_name(path)
+    try:
+        write(tmp)
+        with open(tmp, "rb+") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise OSError(err.errno, f"cannot write {path}: {err.strerror or err}") from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
+    """Write ``data`` (text as UTF-8) to ``path`` whole, or leave what was there; returns the path."""
+    payload = data.encode() if isinstance(data, str) else data
+    def write(tmp: Path) -> None:
+        tmp.write_bytes(payload)
+
+    return _replace_with(path, write)
+
+
+def savefig_atomic(fig: Any, path: str | os.PathLike, **kwargs: Any) -> Path:
+    """``fig.savefig(path)`` whole, or leave what was there; returns the path."""
+    return _replace_with(path, lambda tmp: fig.savefig(tmp, format=Path(path).suffix.lstrip(".") or None, **kwargs))
