@@ -78,6 +78,12 @@ def _env_maker(spec: DomainSpec):
     return make
 
 
+def make_task_env(domain: str, task_id: int, **kwargs):
+    """The env of ``domain``'s task ``task_id``: an importable entry point for an env spec that
+    travels with data (a Minari dataset's ``env_spec``: ``recover_environment(task_id=...)``)."""
+    return get_domain(domain).make_env(task_id, **kwargs)
+
+
 def unregister_domain(name: str) -> None:
     """Remove a domain registered with ``register_domain`` (tests); built-ins come back on next use."""
     from gymnasium.envs.registration import registry

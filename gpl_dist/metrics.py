@@ -12,7 +12,8 @@ from gpl_dist.records import Attempt
 ROUND_LINE_LEGEND = (
     "each round prints one line: the tuples collected (states labelled by the expert) and the seconds it took; "
     "'buffer' the tuples trained on; 'train' the seconds, loss and accuracy of the policy against the expert's "
-    "labels; 'corr-spread' how much the correction module's output differs between attempts (0: it is dead); "
+    "labels; 'corr-spread' how much the correction module's output differs between attempts (0: it is dead; "
+    "absent when the variant reads no corrections or the round's last batch held fewer than two corrected attempts); "
     "'dead i c t p' the hidden units never positive (ReLU or LeakyReLU), of all, in the instruction, correction, "
     "trajectory and pair encoders; 'cK' the mean completion on the training tasks after K corrections "
     "(c0: the instruction alone)")

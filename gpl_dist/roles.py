@@ -72,9 +72,11 @@ class DomainSpec:
             goal block and the target's coordinates), ``f(task_id)`` -> float32 ``(F,)``; the
             ``full_information`` variant then reads them through an MLP in place of the
             full-information text. None: the full information is the oracle's text.
-        correction_phrasings: ``f()`` -> every sentence the oracle's text kinds can say; a person's
-            correction is checked against them (``gpl_dist.app.teaching``: the closest known phrasing).
-            None: the vocabulary alone is known.
+        correction_phrasings: ``f()`` -> every sentence the oracle's text kinds can say, and
+            optionally ``f(kind)`` -> those of one kind (``phrasings_of``); a person's correction is
+            checked against the run's kind (``gpl_dist.app.teaching``: the closest known phrasing,
+            and a warning for a sentence of a kind the policy never trained on). None: the
+            vocabulary alone is known.
         paraphrases: other phrasings of the instructions and corrections (``language.Paraphrases``),
             for training with paraphrases (``model.paraphrases``) and meta-testing with held-out
             ones (``eval.phrasings``); None: the domain has only its canonical phrasings.
@@ -99,7 +101,7 @@ class DomainSpec:
     obs_categories: tuple[int, ...] | None = None
     splits: Mapping[str, tuple[int, ...]] | None = None
     full_information_values: Callable[[int], np.ndarray] | None = None
-    correction_phrasings: Callable[[], tuple[str, ...]] | None = None
+    correction_phrasings: Callable[..., tuple[str, ...]] | None = None
     paraphrases: Paraphrases | None = None
     train_split: str = "train"
     eval_split: str = "test"
@@ -113,6 +115,20 @@ class DomainSpec:
         if self.paraphrases is None:
             raise ValueError(f"domain '{self.name}' declares no paraphrases")
         return self.vocabulary.extended(self.paraphrases.words("train"))
+
+    def phrasings_of(self, kind: str | None = None) -> tuple[str, ...]:
+        """The sentences the oracle of correction ``kind`` says (``correction_phrasings(kind)``);
+        every text kind's with ``kind`` None or when ``correction_phrasings`` takes no kind; ()
+        without ``correction_phrasings``."""
+        f = self.correction_phrasings
+        if f is None:
+            return ()
+        if kind is not None:
+            try:
+                return tuple(f(kind))
+            except TypeError:  # a domain's phrasings that take no kind: every kind's
+                pass
+        return tuple(f())
 
     def instruction_of(self, task_id: int) -> str:
         """The instruction of ``task_id`` (its env's ``TaskEnv.instruction``)."""

@@ -64,7 +64,18 @@ def test_every_field_of_every_attempt_round_trips_through_minari(run, tmp_path, 
         assert meta["correction_after"] == a["correction"] and meta["correction_after_ids"] == list(a["correction_ids"])
         assert meta["corrections_before"] == [by_key[k]["correction"] for k in a["context_keys"]]
         assert meta["corrections_before_ids"] == [list(by_key[k]["correction_ids"]) for k in a["context_keys"]]
+        # the correction that led to the attempt, at every step beside the instruction ("" for a first attempt)
+        led = by_key[a["context_keys"][-1]] if a["context_keys"] else None
+        assert set(episode.observations["correction"]) == {led["correction"] if led else ""}
+        assert np.array_equal(episode.observations["correction_ids"][0],
+                              led["correction_ids"] if led else np.zeros(vocab.max_tokens, np.int64))
     assert any(m["corrections_before"] for m in metas)  # later attempts carry the corrections they followed
+    # the dataset rebuilds each episode's env: its task, stepping as the episode did
+    for episode, meta in list(zip(dataset.iterate_episodes(), metas))[:3]:
+        env = dataset.recover_environment(task_id=meta["task_id"])
+        assert env.unwrapped.task_id == meta["task_id"] and env.spec.max_episode_steps == 100
+        first, _ = env.reset(seed=meta["seed"])
+        assert np.array_equal(first, episode.observations["observation"][0])
     assert main(["export", str(run), "--out", str(out), "--dataset-id", "gpl-dist/mr-smoke-v0"]) == 2  # never overwritten
 
 
@@ -105,6 +116,7 @@ def test_a_teaching_log_exports_every_attempt_replayed_undone_ones_included(run,
         assert m["completion"] == a.completion == float(e.infos["completion"][-1])
         assert m["seed"] == 2 and m["task_id"] == 5 and m["episode"] == episode.episode_id
         assert m["typed_before"] == (a.typed if a.check else "")
+        assert set(e.observations["correction"]) == {a.check.text if a.check else ""}
     assert by_key[(1, False, ("enter the grey room",))][1]["typed_before"] == "go into the grey rom"
     assert by_key[(1, True, ("enter the gry room",))][1]["unknown_words"] == ["gry"]
     # the chain rebuilt from the rows alone: attempt 2 followed the attempt made in the undone one's place

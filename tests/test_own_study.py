@@ -149,3 +149,46 @@ def test_render_draws_a_plug_in_domain_without_rgb_or_path_points(tmp_path, caps
     assert main(["train", "--config", str(config), "--serial", "--run-dir", str(run), "--no-progress"]) == 0
     assert main(["render", "--run-dir", str(run), "--task", "6", "--attempts", "2", "--out", str(tmp_path / "p.gif")]) == 0
     assert Image.open(tmp_path / "p.gif").n_frames >= 4
+
+
+def test_teaching_offers_and_expects_the_corrections_the_policy_trained_on(tmp_path, capsys):
+    """A multi-room run trained on subgoal corrections: the page's examples are subgoal sentences
+    (no directional one), a directional sentence is accepted with a warning that the policy never
+    trained on it, and a subgoal sentence without one; each kind's phrasings are its own."""
+    from fastapi.testclient import TestClient
+
+    from gpl_dist.app.teach_web import create_app
+    from gpl_dist.app.teaching import Teacher
+
+    domain = get_domain("multiroom")
+    assert set(domain.phrasings_of("subgoal")) <= set(domain.phrasings_of(None))
+    assert not set(domain.phrasings_of("subgoal")) & set(domain.phrasings_of("directional")) - {"you are done"}
+    run = tmp_path / "run"
+    assert main(["train", "--config", str(REPO / "configs" / "multiroom-smoke.yaml"), "--serial", "--no-progress",
+                 "--run-dir", str(run), "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4",
+                 "--set", "training.num_epochs_per_round=1"]) == 0
+    client = TestClient(create_app(Teacher(run), tmp_path / "teaching"), base_url="http://127.0.0.1")
+    examples = client.get("/api/info").json()["examples"]
+    subgoal = set(domain.phrasings_of("subgoal"))
+    assert examples and set(examples) <= subgoal
+    assert not any(" is " in e for e in examples)  # "the object room is southeast": directional, never trained on
+    directional = client.post("/api/check", json={"text": "the object room is southeast"}).json()
+    assert directional["problem"] is None and "never on this sentence" in directional["warning"]
+    assert "'subgoal' corrections" in directional["warning"] or "'default' corrections" in directional["warning"]
+    own = client.post("/api/check", json={"text": "enter the blue room"}).json()
+    assert own["warning"] is None and own["suggestion"] is None
+
+
+def test_terminal_teaching_keeps_an_undone_attempts_gif(tmp_path):
+    from gpl_dist.app.teach_terminal import teach_in_terminal
+    from gpl_dist.app.teaching import Teacher
+
+    run = tmp_path / "run"
+    assert main(["train", "--config", str(REPO / "configs" / "multiroom-smoke.yaml"), "--serial", "--no-progress",
+                 "--run-dir", str(run), "--set", "training.num_rounds=1", "--set", "env.max_train_tasks=4",
+                 "--set", "training.num_epochs_per_round=1"]) == 0
+    lines = iter(["enter the blue room", ":undo", "enter the red room", ":quit"])
+    teacher = Teacher(run)
+    teach_in_terminal(teacher.episode(263, 3, "terminal"), tmp_path / "out", read_line=lambda prompt: next(lines))
+    gifs = sorted(p.name for p in (tmp_path / "out" / "gifs").iterdir())
+    assert len(gifs) == 3 and sum("-attempt1" in g for g in gifs) == 2 and any("-take2" in g for g in gifs), gifs

@@ -317,13 +317,15 @@ def _pictures(spec: DomainSpec) -> str:
 def _phrasings(spec: DomainSpec, tasks: list[int]) -> str:
     if spec.correction_phrasings is None:
         return "none declared (a person's correction is checked against the vocabulary alone)"
-    known = {" ".join(s.lower().split()) for s in spec.correction_phrasings()}
+    known = {" ".join(s.lower().split()) for s in spec.phrasings_of(None)}
     for kind in [k for k in spec.correction_kinds if k not in NUMERIC_KINDS]:
+        own = {" ".join(s.lower().split()) for s in spec.phrasings_of(kind)}
+        _expect(own <= known, f"correction_phrasings({kind!r}) holds sentences that correction_phrasings() lacks")
         oracle = spec.make_corrector(kind)
         for task in tasks:
             text = oracle.correct(_random_attempt(spec, task, task)[0], np.random.default_rng(task)).text
-            _expect(" ".join(text.lower().split()) in known, f"{kind} said {text!r}, which correction_phrasings lacks")
-    return f"{len(known)} phrasings cover every correction said"
+            _expect(" ".join(text.lower().split()) in own, f"{kind} said {text!r}, which its correction_phrasings lack")
+    return f"{len(known)} phrasings cover every correction said, each kind's its own"
 
 
 def _paraphrases(spec: DomainSpec) -> str:

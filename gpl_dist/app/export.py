@@ -10,7 +10,9 @@ JPEG-encoded):
   it, plus the state after the last action, replayed from the attempt's reset seed and actions and
   checked against the stored states), ``instruction`` (the text) and ``instruction_ids`` (the
   token ids the policy read, int64 ``(L,)``): token ids beside the text, so a loader need not
-  tokenise (torchrl cannot read a text mission from Minari);
+  tokenise (torchrl cannot read a text mission from Minari), and ``correction`` /
+  ``correction_ids``: the correction that led to this attempt ("" and zeros for a first attempt),
+  at every step as the instruction is;
 - ``actions``: the actions the policy executed;
 - ``rewards``: the env's dense reward of each step (the paper's PPO reward), from the replay;
 - ``terminations`` never, ``truncations`` at the attempt's last step (the time limit);
@@ -40,7 +42,10 @@ The log files read are the ``*.parquet`` of the folder that ``pyarrow.dataset`` 
 starting with ``_`` or ``.`` (a temporary being written, a hidden file) are skipped, and a symbolic
 link is refused, not followed (``teaching_log_files``).
 
-``minari.load_dataset(DATASET_ID)`` with ``MINARI_DATASETS_PATH=DIR`` reads it back.
+``minari.load_dataset(DATASET_ID)`` with ``MINARI_DATASETS_PATH=DIR`` reads it back. The dataset
+records an ``env_spec`` (``env_spec``): ``dataset.recover_environment(task_id=T)`` makes the env
+of task ``T`` (an episode's metadata names its ``task_id``); the env's observation is the
+``observation`` entry of the dataset's dict.
 
 **Where it is written.** ``DATASET_ID`` must be Minari's ``namespace/name-vN`` form and resolve
 inside ``DIR`` (``dataset_target``), or nothing is written. The dataset is written into a hidden
@@ -151,20 +156,29 @@ def _minari():
     return EpisodeBuffer, MinariDataset, MinariStorage
 
 
+def env_spec(domain, task_id: int = 0):
+    """The gymnasium ``EnvSpec`` a dataset records: the domain's env of ``task_id``, made through
+    an importable entry point (``gpl_dist.domains.make_task_env``), so that
+    ``dataset.recover_environment(task_id=T)`` rebuilds the env of any episode's task."""
+    from gymnasium.envs.registration import EnvSpec
+
+    return EnvSpec(id=domain.env_id, entry_point="gpl_dist.domains:make_task_env",
+                   kwargs={"domain": domain.name, "task_id": int(task_id)}, max_episode_steps=domain.steps_per_attempt)
+
+
 def _new_storage(MinariStorage, domain, vocab, folder: Path) -> tuple[Any, Path]:
     """A new Minari storage of ``domain``'s spaces (the observation dict above) in ``folder/data``."""
     import gymnasium as gym
 
     env = domain.make_env(0)
-    observation_space = gym.spaces.Dict({
-        "observation": env.observation_space,
-        "instruction": gym.spaces.Text(MAX_INSTRUCTION_CHARS, charset=TEXT_CHARSET),
-        "instruction_ids": gym.spaces.Box(0, len(vocab) - 1, (vocab.max_tokens,), np.int64),
-    })
+    text = gym.spaces.Text(MAX_INSTRUCTION_CHARS, min_length=0, charset=TEXT_CHARSET)
+    ids = gym.spaces.Box(0, len(vocab) - 1, (vocab.max_tokens,), np.int64)
+    observation_space = gym.spaces.Dict({"observation": env.observation_space, "instruction": text,
+                                         "instruction_ids": ids, "correction": text, "correction_ids": ids})
     data_path = folder / "data"
     data_path.mkdir()
     storage = MinariStorage.new(data_path, observation_space=observation_space, action_space=env.action_space,
-                                data_format="arrow", jpeg_encoding=False)
+                                env_spec=env_spec(domain), data_format="arrow", jpeg_encoding=False)
     return storage, data_path
 
 
@@ -223,9 +237,12 @@ def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, datase
                             "correction_after_kind": a["correction_kind"],
                         })
                         json.dumps(metas[-1])  # plain values only
+                        led = before[-1] if before else None  # the correction this attempt followed
                         yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a["task_id"]), int(a["seed"]),
                                        a["instruction"], a["instruction_ids"], stored, actions[rows], labels[rows],
-                                       f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']})")
+                                       f"attempt {a['attempt_key']} (task {a['task_id']}, round {a['round']})",
+                                       led["correction"] if led else "",
+                                       led["correction_ids"] if led else np.zeros(vocab.max_tokens, np.int64))
 
         storage.update_episodes(episodes())
         _finish(storage, MinariDataset, data_path, dataset_id, metas,
@@ -357,7 +374,8 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
                     json.dumps(metas[-1])  # plain values only
                     yield _episode(EpisodeBuffer, domain, len(metas) - 1, int(a.task_id), int(a.seed), a.instruction,
                                    a.instruction_ids, np.asarray(a.observations), np.asarray(a.actions),
-                                   np.asarray(a.expert_actions), what)
+                                   np.asarray(a.expert_actions), what, texts[-1] if texts else "",
+                                   ids[-1] if ids else np.zeros(vocab.max_tokens, np.int64))
 
         storage.update_episodes(episodes())
         _finish(storage, MinariDataset, data_path, dataset_id, metas,
@@ -374,9 +392,11 @@ def _minari_version() -> str:
 
 
 def _episode(EpisodeBuffer, domain, index: int, task_id: int, seed: int, instruction: str, instruction_ids,
-             stored: np.ndarray, actions: np.ndarray, labels: np.ndarray, what: str) -> Any:
+             stored: np.ndarray, actions: np.ndarray, labels: np.ndarray, what: str, correction: str = "",
+             correction_ids=None) -> Any:
     """One attempt as a Minari episode: replayed from ``seed`` through ``actions`` (rewards, the final
-    state), checked against the ``stored`` states it acted in."""
+    state), checked against the ``stored`` states it acted in; ``correction`` (and its ids) is the
+    one that led to it ("" for a first attempt), repeated at every step."""
     env = domain.make_env(task_id)
     first, info = env.reset(seed=seed)
     observations, rewards, completion, success = [np.asarray(first)], [], [info["completion"]], [info["success"]]
@@ -393,7 +413,9 @@ def _episode(EpisodeBuffer, domain, index: int, task_id: int, seed: int, instruc
     return EpisodeBuffer(
         id=index, seed=seed,
         observations={"observation": replayed, "instruction": [instruction] * n,
-                      "instruction_ids": np.tile(np.asarray(instruction_ids, np.int64), (n, 1))},
+                      "instruction_ids": np.tile(np.asarray(instruction_ids, np.int64), (n, 1)),
+                      "correction": [correction] * n,
+                      "correction_ids": np.tile(np.asarray(correction_ids, np.int64), (n, 1))},
         actions=actions.astype(np.int64), rewards=rewards, terminations=[False] * len(rewards),
         truncations=[False] * (len(rewards) - 1) + [True],
         # lists, not 1-D arrays: minari 0.5.4 cannot read back a 1-D array info (an empty shape)

@@ -58,10 +58,13 @@ def _teach(episode: TeachingEpisode, out_dir: Path, always_hint: bool, read_line
     log_path = ""
     correction: str | None = None
     typed: str | None = None
+    takes: dict[int, int] = {}  # attempt index -> how often it was made (an undone attempt keeps its GIF)
     while True:
         attempt = episode.attempt(correction, typed)
         log_path = write_episode_log(episode, log_dir)
-        gif = write_atomic(gif_dir / f"{episode.episode_id}-attempt{attempt.index}.gif", episode.gif(attempt.index))
+        takes[attempt.index] = takes.get(attempt.index, 0) + 1
+        take = "" if takes[attempt.index] == 1 else f"-take{takes[attempt.index]}"
+        gif = write_atomic(gif_dir / f"{episode.episode_id}-attempt{attempt.index}{take}.gif", episode.gif(attempt.index))
         _show(say, attempt, gif)
         if attempt.success or episode.corrections_left <= 0:
             say("solved." if attempt.success else f"no corrections left ({episode.teacher.max_corrections} given).")
@@ -134,7 +137,9 @@ def _read_correction(episode: TeachingEpisode, read_line: Callable[[str], str],
             continue
         if check.suggestion is None:
             return check.text, None
-        if check.unknown_words:
+        if check.warning:
+            say(f"{check.warning}; the closest it trained on: '{check.suggestion}'")
+        elif check.unknown_words:
             say(f"unknown words: {', '.join(w[:40] for w in check.unknown_words[:8])} (the policy reads them as <unk>); "
                 f"closest known phrasing: '{check.suggestion}'")
         else:

@@ -154,6 +154,7 @@ class CheckView(BaseModel):
     unknown_words: list[str]
     suggestion: str | None
     problem: str | None
+    warning: str | None = None
 
 
 class AttemptView(BaseModel):
@@ -270,7 +271,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
 
     @app.get("/api/info")
     def info() -> dict:
-        phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
+        phrasings = domain.phrasings_of(teacher.cfg.env.correction_kind)  # the kind this policy trained on
         return {"domain": domain.name, "run_dir": teacher.run_dir, "checkpoint_round": teacher.round_index,
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
@@ -279,9 +280,9 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
 
     @app.post("/api/check", response_model=CheckView)
     def check(body: CheckRequest) -> CheckView:
-        c = check_correction(domain, body.text, vocabulary=teacher.model.vocabulary)
+        c = check_correction(domain, body.text, vocabulary=teacher.model.vocabulary, kind=teacher.cfg.env.correction_kind)
         return CheckView(words=list(c.words)[:100], unknown_words=list(c.unknown_words)[:100],
-                         suggestion=c.suggestion, problem=c.problem)
+                         suggestion=c.suggestion, problem=c.problem, warning=c.warning)
 
     @app.post("/api/episodes", response_model=EpisodeView)
     def start(body: StartRequest) -> EpisodeView:

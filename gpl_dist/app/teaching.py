@@ -114,6 +114,8 @@ class CorrectionCheck:
             text is not one of them; None when it is one.
         problem: why the text cannot be used (empty, too long, control characters, no known
             word); None when it can.
+        warning: the text is a sentence the domain's oracle says, but of another correction kind
+            than the policy was trained on (it may not follow it); None otherwise.
     """
 
     text: str
@@ -122,6 +124,7 @@ class CorrectionCheck:
     unknown_words: tuple[str, ...]
     suggestion: str | None
     problem: str | None
+    warning: str | None = None
 
     @property
     def usable(self) -> bool:
@@ -129,14 +132,17 @@ class CorrectionCheck:
 
 
 def check_correction(domain: DomainSpec, text: str, what: str = "correction",
-                     vocabulary: Vocabulary | None = None, phrasings: tuple[str, ...] | None = None) -> CorrectionCheck:
+                     vocabulary: Vocabulary | None = None, phrasings: tuple[str, ...] | None = None,
+                     kind: str | None = None) -> CorrectionCheck:
     """``CorrectionCheck`` of ``text`` for a policy of ``domain`` that reads ``vocabulary`` (default
     the domain's; a model trained with paraphrases reads more); ``what`` names it in messages,
-    ``phrasings`` are the known sentences it is compared with (default the oracle's corrections)."""
+    ``phrasings`` are the known sentences it is compared with (default: those of correction
+    ``kind``, the run's, ``DomainSpec.phrasings_of``; every kind's without one). A sentence of
+    another kind is usable, with a warning that the policy never trained on it."""
     text = (text if isinstance(text, str) else "").strip()
     vocab = vocabulary or domain.vocabulary
     if phrasings is None:
-        phrasings = domain.correction_phrasings() if domain.correction_phrasings else ()
+        phrasings = domain.phrasings_of(kind)
     if len(text) > MAX_TEXT_CHARS:  # before any other work: a pasted book costs nothing
         return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], (), (), (), None,
                                f"the {what} is {len(text)} characters long; at most {MAX_TEXT_CHARS} are read")
@@ -158,7 +164,13 @@ def check_correction(domain: DomainSpec, text: str, what: str = "correction",
     elif 2 * sum(w in unknown for w in words) > len(words):  # mostly <unk>: another language, or noise
         problem = (f"this policy knows too few of the words of the {what} (unknown: {', '.join(w[:40] for w in unknown[:8])}); "
                    "it reads English" + (f", for example '{suggestion}'" if suggestion else ""))
-    return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], words, ids, unknown, suggestion, problem)
+    warning = None
+    if kind is not None and not problem and suggestion is not None:
+        said = " ".join(words)
+        if any(" ".join(split_words(p)) == said for p in domain.phrasings_of(None)):
+            warning = (f"this policy was trained on '{kind}' corrections and never on this sentence (another kind's): "
+                       "it may not follow it")
+    return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], words, ids, unknown, suggestion, problem, warning)
 
 
 def closest_phrasing(words: tuple[str, ...] | list[str], phrasings: tuple[str, ...]) -> str | None:
@@ -337,7 +349,8 @@ class TeachingEpisode:
 
     def check(self, text: str) -> CorrectionCheck:
         """``check_correction`` against this episode's policy (for highlighting as one types)."""
-        return check_correction(self.teacher.domain, text, vocabulary=self.teacher.model.vocabulary)
+        return check_correction(self.teacher.domain, text, vocabulary=self.teacher.model.vocabulary,
+                                kind=self.teacher.cfg.env.correction_kind)
 
     def attempt(self, correction: str | None = None, typed: str | None = None) -> TaughtAttempt:
         """The next attempt: the first one without ``correction``, each later one after it.

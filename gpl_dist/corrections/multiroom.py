@@ -191,16 +191,24 @@ _THINGS = ("the object room", "the object", "the exit", "the goal room", "the go
 
 
 @functools.cache
-def phrasings() -> tuple[str, ...]:
-    """Every correction a multi-room oracle of a text kind (subgoal, directional, binary) can say:
-    the phrasings a person's correction is compared with (``gpl_dist.app.teaching``)."""
-    subgoal = ([f"enter the {c} room" for c in COLOURS] + [f"exit the {c} room" for c in COLOURS]
-               + [f"go to the {c} room" for c in COLOURS]
-               + [f"pick up the {c} {s}" for c in COLOURS for s in SHAPES] + [f"go to the {c} goal" for c in COLOURS])
+def phrasings(kind: str | None = None) -> tuple[str, ...]:
+    """Every correction a multi-room oracle of a text kind (subgoal, directional, binary, retry) can
+    say, or those of ``kind`` alone (none for ``reward``, whose sentence is a count): the phrasings
+    a person's correction is compared with (``gpl_dist.app.teaching``)."""
+    rooms = [f"enter the {c} room" for c in COLOURS] + [f"exit the {c} room" for c in COLOURS]
+    things = [f"pick up the {c} {s}" for c in COLOURS for s in SHAPES] + [f"go to the {c} goal" for c in COLOURS]
+    goal_room = [f"go to the {c} room" for c in COLOURS]
     directional = [f"{thing} is {d}" for thing in _THINGS for d in _COMPASS]
     binary = ["you are in the right room", "you are in the wrong room", "you have the wrong object",
               "you have the right object", "you do not have the object"]
-    return (*subgoal, *directional, *binary, DONE_TEXT, RETRY_TEXT)
+    by_kind = {"subgoal": (*rooms, *things, DONE_TEXT), "subgoal_goal_room_apart": (*rooms, *goal_room, *things, DONE_TEXT),
+               "directional": (*directional, DONE_TEXT), "binary": (*binary, DONE_TEXT), "retry": (RETRY_TEXT,),
+               "reward": ()}
+    by_kind["default"] = by_kind["subgoal"]
+    by_kind["all"] = (*rooms, *things, *directional, *binary, DONE_TEXT)
+    if kind is not None:
+        return by_kind[kind]
+    return (*rooms, *goal_room, *things, *directional, *binary, DONE_TEXT, RETRY_TEXT)
 
 
 def make_multiroom_corrector(kind: str = "default") -> MultiRoomCorrector:

@@ -153,13 +153,20 @@ class RelocationCorrector:
 
 
 @functools.cache
-def phrasings() -> tuple[str, ...]:
+def phrasings(kind: str | None = None) -> tuple[str, ...]:
     """Every correction the relocation oracle of a text kind can say (touch, directional,
-    relational): the phrasings a person's correction is compared with (``gpl_dist.app.teaching``)."""
-    return (*(f"Touch the {c} block" for c in MOVABLE_COLORS),
-            *(f"Move {amount} {d}" for amount in ("a little", "a lot") for d in DIRECTION_PHRASES),
-            *(f"Move {d} of the {c} block" for c in FIXED_COLORS for d in DIRECTION_PHRASES),
-            *(f"Move closer to the {c} block" for c in FIXED_COLORS), RETRY_TEXT)
+    relational, retry), or those of ``kind`` alone (none for ``reward``): the phrasings a person's
+    correction is compared with (``gpl_dist.app.teaching``)."""
+    touch = tuple(f"Touch the {c} block" for c in MOVABLE_COLORS)
+    directional = tuple(f"Move {amount} {d}" for amount in ("a little", "a lot") for d in DIRECTION_PHRASES)
+    relational = (*(f"Move {d} of the {c} block" for c in FIXED_COLORS for d in DIRECTION_PHRASES),
+                  *(f"Move closer to the {c} block" for c in FIXED_COLORS))
+    by_kind = {"touch": touch, "directional": directional, "relational": relational, "retry": (RETRY_TEXT,),
+               "reward": (), "default": (*touch, *directional, *relational)}
+    by_kind["mixed"] = by_kind["default"]
+    if kind is not None:
+        return by_kind[kind]
+    return (*touch, *directional, *relational, RETRY_TEXT)
 
 
 def make_relocation_corrector(kind: str = "default") -> RelocationCorrector:
