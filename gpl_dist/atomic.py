@@ -23,6 +23,8 @@ def temporary_name(path: Path) -> Path:
 def _replace_with(path: str | os.PathLike, write: Callable[[Path], None]) -> Path:
     path = Path(path)
     tmp = temporary_name(path)
+    if tmp.is_symlink() or tmp.exists():  # this thread's name: a link planted there, or a dead writer's, goes
+        tmp.unlink()
     try:
         write(tmp)
         with open(tmp, "rb+") as f:
@@ -38,10 +40,14 @@ def _replace_with(path: str | os.PathLike, write: Callable[[Path], None]) -> Pat
 
 
 def write_atomic(path: str | os.PathLike, data: bytes | str) -> Path:
-    """Write ``data`` (text as UTF-8) to ``path`` whole, or leave what was there; returns the path."""
+    """Write ``data`` (text as UTF-8) to ``path`` whole, or leave what was there; returns the path.
+    The temporary is made new (never an existing file, never through a link planted at its name)."""
     payload = data.encode() if isinstance(data, str) else data
+
     def write(tmp: Path) -> None:
-        tmp.write_bytes(payload)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            f.write(payload)
 
     return _replace_with(path, write)
 

@@ -221,6 +221,8 @@ def cmd_suite_report(args: argparse.Namespace) -> int:
     if not suite_out.is_dir():
         raise RunDirError(f"no suite output at {suite_out}")
     archive = out / ARCHIVE_DIR
+    if archive.is_symlink():
+        raise RunDirError(f"{archive} is a symbolic link: the report's archive is written in place, never through one")
     archive.mkdir(parents=True, exist_ok=True)
     archive_runs(suite_out, archive)  # the evidence first: the report is computed from it
     md, html = build_report(archive, out, source=suite_out)
@@ -379,6 +381,10 @@ def cmd_verify(args: argparse.Namespace) -> int:
         with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
             report = verify_buffer(root, run_id=checks.run_id)
             print("\n".join(report_lines(report)))
+            refuse = [p for p in report.problems if p.kind == "link" or (p.kind == "foreign" and p.round_index is None)]
+            if refuse:  # a link, or a whole buffer of another run: setting rounds aside would move what is not ours
+                raise UsageError(f"--quarantine moves nothing here: {refuse[0].path}: {refuse[0].message} "
+                                 "(remove the link, or verify the run the buffer belongs to)")
             for r in report.bad_rounds:
                 moved = quarantine_round(root, r)
                 what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"

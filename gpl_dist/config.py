@@ -209,9 +209,9 @@ class RunConfig:
     def __post_init__(self) -> None:
         """Fields left "" take the domain's defaults (its first expert, its training and evaluation
         splits), once the domain is known (a plug-in's module loads in ``config_from_dict``)."""
-        from gpl_dist.domains import domain_names, get_domain
+        from gpl_dist.domains import get_domain, is_loaded
 
-        if not (self.env.expert and self.env.train_split and self.eval.split) and self.env.domain in domain_names():
+        if not (self.env.expert and self.env.train_split and self.eval.split) and is_loaded(self.env.domain):
             spec = get_domain(self.env.domain)
             object.__setattr__(self, "env", dataclasses.replace(
                 self.env, expert=self.env.expert or next(iter(spec.experts)),
@@ -375,10 +375,10 @@ def config_from_dict(values: Mapping[str, Any] | None, source: str = "<dict>", p
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
     cfg = _with_domain_defaults(cfg, source, plugins)
-    from gpl_dist.domains import domain_names
+    from gpl_dist.domains import is_loaded
 
-    if plugins == "none" and cfg.env.domain not in domain_names():
-        return cfg  # a plug-in domain this process does not know, read without its module
+    if plugins == "none" and not is_loaded(cfg.env.domain):
+        return cfg  # a plug-in domain (a file's or an installed package's), read without importing it
     validate(cfg, source)
     return cfg
 
@@ -387,19 +387,24 @@ def _with_domain_defaults(cfg: RunConfig, source: str, plugins: str = "run") -> 
     """``cfg`` with its domain's module imported (``env.domain_module``, as ``plugins`` allows) and
     the fields left "" set to the domain's defaults (expert, training and evaluation splits); an
     unknown domain is left for ``validate`` to name."""
-    from gpl_dist.domains import domain_module_allowed, load_domain_module, trust_domain_module
+    from gpl_dist.domains import domain_module_allowed, domain_names, get_domain, load_domain_module, trust_domain_module
 
     if plugins not in PLUGIN_POLICIES:
         raise ValueError(f"plugins must be one of {PLUGIN_POLICIES}, got {plugins!r}")
     if cfg.env.domain_module and plugins != "none":
         try:
-            if plugins == "run":
-                domain_module_allowed(cfg.env.domain_module)
-            load_domain_module(cfg.env.domain_module)
+            approved = domain_module_allowed(cfg.env.domain_module) if plugins == "run" else None
+            load_domain_module(cfg.env.domain_module, approved)
             if plugins == "own":
                 trust_domain_module(cfg.env.domain_module)
         except UserError as err:
             raise ConfigError(f"{source}: env.domain_module: {err}") from None
+    if plugins == "own" and cfg.env.domain_module.strip().endswith(".py"):
+        # the user's own file, recorded absolute: the run's eval, teach and --resume find it from any folder
+        absolute = str(Path(cfg.env.domain_module.strip()).expanduser().resolve())
+        cfg = dataclasses.replace(cfg, env=dataclasses.replace(cfg.env, domain_module=absolute))
+    if plugins != "none" and cfg.env.domain in domain_names():
+        get_domain(cfg.env.domain)  # an installed plug-in's module: imported to build the domain, never to read a run
     return dataclasses.replace(cfg)  # __post_init__ again, now that a plug-in domain is registered
 
 
@@ -657,7 +662,6 @@ def results_dict(cfg: RunConfig) -> dict:
 
 def save_config(cfg: RunConfig, path: str | os.PathLike) -> None:
     """Write the resolved config as YAML (atomically, so a crash never leaves half a file)."""
-    p = Path(path)
-    tmp = p.with_name(f".{p.name}.tmp")
-    tmp.write_text(yaml.safe_dump(config_to_dict(cfg), sort_keys=False))
-    os.replace(tmp, p)
+    from gpl_dist.atomic import write_atomic
+
+    write_atomic(Path(path), yaml.safe_dump(config_to_dict(cfg), sort_keys=False))

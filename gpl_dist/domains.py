@@ -113,6 +113,12 @@ def domain_names() -> tuple[str, ...]:
     return tuple(names)
 
 
+def is_loaded(name: str) -> bool:
+    """Whether ``name`` is known without importing anything that is not gpl-dist's own: a built-in
+    domain, or one registered in this process (an installed plug-in is not, until looked up)."""
+    return name in _REGISTERED or name in BUILTIN_DOMAINS
+
+
 def get_domain(name: str) -> DomainSpec:
     """The ``DomainSpec`` of ``name``; ``UsageError`` naming the known domains otherwise."""
     if name not in _REGISTERED and name in BUILTIN_DOMAINS:
@@ -170,9 +176,10 @@ def _trusted() -> list[dict]:
 
 
 def trust_domain_module(ref: str) -> None:
-    """Record ``ref`` (its path and sha256, or its module name) as trusted by this machine's user:
-    a run made from the user's own config, or ``--trust-domain-module``."""
+    """Record ``ref`` (its path and the sha256 of the bytes this process ran, or its module name)
+    as trusted by this machine's user: a run made from the user's own config."""
     name, digest = _module_key(ref)
+    digest = _RAN.get(name, digest)
     entry = {"module": name, "sha256": digest}
     entries = _trusted()
     if entry in entries:
@@ -198,16 +205,20 @@ def _entry_point_modules() -> set[str]:
     return {value.split(":")[0] for value in _plugins().values()}
 
 
-def domain_module_allowed(ref: str) -> None:
+def domain_module_allowed(ref: str) -> str | None:
     """Return when the domain module ``ref`` that a run's data names may be imported (see the module
-    docstring); ``PluginRefused`` naming it otherwise."""
+    docstring): the sha256 of the file approved (its import must run exactly those bytes,
+    ``load_domain_module(ref, sha256)``), None for a module or one imported already;
+    ``PluginRefused`` naming it otherwise."""
     name, digest = _module_key(ref)
-    if _TRUST_ALL or _loaded(ref):
-        return
+    if _loaded(ref):
+        return None
+    if _TRUST_ALL:
+        return digest or None
     if not digest and name in _entry_point_modules():
-        return
+        return None
     if {"module": name, "sha256": digest} in _trusted():
-        return
+        return digest
     if digest:
         raise PluginRefused(f"this run's config names the plug-in file {name} (sha256 {digest}), which no run of "
                             "this machine was started from: read it, then pass --trust-domain-module to import it")
@@ -221,10 +232,16 @@ def _file_module_name(path: Path) -> str:
     return f"gpl_dist_domain_{path.stem}_{hashlib.sha256(str(path).encode()).hexdigest()[:12]}"
 
 
-def load_domain_module(ref: str) -> tuple[str, ...]:
+#: resolved path of each plug-in file this process ran -> the sha256 of the bytes it ran
+_RAN: dict[str, str] = {}
+
+
+def load_domain_module(ref: str, sha256: str | None = None) -> tuple[str, ...]:
     """Import ``ref`` (a dotted module name, or the path of a ``.py`` file) and register the
     ``DomainSpec`` it defines as ``DOMAIN``; returns the names registered. Importing it again (the
-    same path, in a worker that already has it) registers nothing new."""
+    same path, in a worker that already has it) registers nothing new. A file is read once and
+    those bytes run (never a cached ``.pyc`` beside it); with ``sha256`` (the digest approved,
+    ``domain_module_allowed``) they must have it, or nothing runs (``PluginRefused``)."""
     ref = str(ref).strip()
     if ref.endswith(".py"):
         path = Path(ref).expanduser().resolve()
@@ -233,16 +250,23 @@ def load_domain_module(ref: str) -> tuple[str, ...]:
         name = _file_module_name(path)
         module = sys.modules.get(name)
         if module is None:
-            spec = importlib.util.spec_from_file_location(name, path)
-            if spec is None or spec.loader is None:
+            data = path.read_bytes()
+            digest = hashlib.sha256(data).hexdigest()
+            if sha256 is not None and digest != sha256:
+                raise PluginRefused(f"the plug-in file {path} changed while it was checked (sha256 {digest}, "
+                                    f"approved {sha256}): not imported")
+            spec = importlib.util.spec_from_loader(name, loader=None, origin=str(path))
+            if spec is None:
                 raise UsageError(f"domain module {ref}: not a Python file")
             module = importlib.util.module_from_spec(spec)
+            module.__file__ = str(path)
             sys.modules[name] = module
             try:
-                spec.loader.exec_module(module)
+                exec(compile(data, str(path), "exec"), module.__dict__)  # noqa: S102 - the approved bytes, as asked
             except Exception:
                 del sys.modules[name]
                 raise
+            _RAN[str(path)] = digest
     else:
         try:
             module = importlib.import_module(ref)

@@ -157,8 +157,9 @@ def load_model_state(model: torch.nn.Module, ckpt: Checkpoint, source: str | os.
         raise CheckpointError(f"{source} does not fit this run's model (another variant or size?): {first}") from None
 
 
-#: A temporary file a gpl-dist process writes beside its final name: ``.<name>.tmp-<pid>[-<thread>][.png]``.
-_TEMPORARY = re.compile(r"^\.[^/]+\.tmp-(\d+)(?:-\d+)?(?:\.png)?$")
+#: A temporary file a gpl-dist process writes beside its final name: ``.<name>.tmp-<pid>[-<thread>][.<suffix>]``
+#: (``gpl_dist.atomic.temporary_name``).
+_TEMPORARY = re.compile(r"^\.[^/]+\.tmp-(\d+)(?:-\d+)?(?:\.\w+)?$")
 
 
 def dead_temporaries(run_dir: str | os.PathLike) -> list[Path]:

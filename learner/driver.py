@@ -74,7 +74,7 @@ from learner.checkpoint import (
     save_checkpoint,
 )
 from learner.health import EncoderHealth, format_health
-from learner.identity import RunIdentity, create_identity, read_identity, resolve_identity
+from learner.identity import RunIdentity, create_identity, read_identity, refuse_linked_folders, resolve_identity
 from learner.parallel import make_learner
 from learner.trainer import resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
@@ -319,6 +319,7 @@ def resume_config(run_dir: str | Path, overrides: Mapping[str, str] | None = Non
     latest checkpoint holds (its last round's, changes of earlier resumes included), else, before a
     first checkpoint, its ``config.yaml``; ``overrides`` (``--set``) on top."""
     run_dir = Path(run_dir)
+    refuse_linked_folders(run_dir)
     latest = run_dir / "checkpoints" / LATEST
     if not latest.is_file():
         return load_config(run_dir / "config.yaml", overrides)
@@ -368,6 +369,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
     have been checked; a resumed run that has reached ``training.num_rounds`` changes nothing.
     """
     run_dir = Path(run_dir)
+    refuse_linked_folders(run_dir)
     tasks = preflight(cfg, None if serial else address)
     root = buffer_root(cfg, run_dir)
     ckpt_path = run_dir / "checkpoints" / LATEST

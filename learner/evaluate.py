@@ -36,7 +36,7 @@ from gpl_dist.seeding import evaluation_seed
 from gpl_dist.splits import split_tasks, valid_split
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST, Checkpoint, load_checkpoint, load_model_state
-from learner.identity import read_identity, resolve_identity, why_not_recorded_run
+from learner.identity import read_identity, refuse_linked_folders, resolve_identity, why_not_recorded_run
 from workers.rollout import Rollout
 
 
@@ -123,6 +123,8 @@ def why_foreign(run_dir: str | Path, ckpt: Checkpoint, ckpt_file: str | Path) ->
         own = load_config(saved)
         theirs = config_from_dict(ckpt.config, f"{ckpt_file} (its config)")
     except ConfigError as err:
+        if "--trust-domain-module" in str(err):  # a refused plug-in: not a question of whose checkpoint it is
+            raise
         return f"cannot compare {ckpt_file} with {run_dir}: {err}"
     if identity is None:
         why = why_not_recorded_run(run_dir, ckpt, ckpt_file, own.buffer.location or str(run_dir / "buffer"))
@@ -147,6 +149,7 @@ def load_trained_policy(run_dir: str | Path, checkpoint: str | None = None, *,
 
 
 def _load_policy(run_dir: str | Path, checkpoint: str | None, allow_foreign: bool) -> tuple[RunConfig, PolicyNetwork, Checkpoint]:
+    refuse_linked_folders(run_dir)
     ckpt_file = Path(checkpoint) if checkpoint else Path(run_dir) / "checkpoints" / LATEST
     ckpt = load_checkpoint(ckpt_file)
     why = why_foreign(run_dir, ckpt, ckpt_file) if checkpoint or (Path(run_dir) / "config.yaml").is_file() else None

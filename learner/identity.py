@@ -51,6 +51,21 @@ class RunIdentity:
     legacy: bool
 
 
+#: The folders of a run dir that gpl-dist writes into and walks (``refuse_linked_folders``).
+RUN_FOLDERS = ("buffer", "checkpoints", "teaching", "tb")
+
+
+def refuse_linked_folders(run_dir: str | Path) -> None:
+    """``RunDirError`` in one line when a folder of the run dir (``RUN_FOLDERS``) is a symbolic
+    link: gpl-dist never writes, reads or removes through one (a buffer elsewhere is
+    ``buffer.location``, which the run's identity then guards)."""
+    for name in RUN_FOLDERS:
+        path = Path(run_dir) / name
+        if path.is_symlink():
+            raise RunDirError(f"{path} is a symbolic link (to {os.readlink(path)[:200]!r}): gpl-dist never follows a "
+                              "link inside a run (set buffer.location for a buffer elsewhere, or copy the real files in)")
+
+
 def create_identity(run_dir: str | os.PathLike) -> RunIdentity:
     """Give a new run its identity (``run.json``, written atomically); ``RunDirError`` when it has one."""
     path = Path(run_dir) / RUN_FILE

@@ -216,7 +216,7 @@ def link_error(loc: Location, rel: str) -> Exception:
         target = os.readlink(posixpath.join(loc.root, rel))
     except OSError:
         target = "?"
-    return LinkError(f"{rel} in {loc.url} is a symbolic link (to {target[:200]}); gpl-dist never follows a link "
+    return LinkError(f"{rel} in {loc.url} is a symbolic link (to {target[:200]!r}); gpl-dist never follows a link "
                      "inside a run: replace it with the real files, or remove it", rel)
 
 

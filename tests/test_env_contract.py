@@ -49,9 +49,10 @@ BROKEN = {
                        "FAIL completion in [0, 1]"),
     "a lax task_id check": (("not 0 <= task_id < len(GOALS)", "not 0 <= task_id <= len(GOALS)"),
                             "FAIL task_id bounds: task_id 8 raised IndexError"),
-    "unseeded": (("self.pos, self.t, self.reached = START, 0, False\n        self.path = [START]\n        return",
-                  "self.pos, self.t, self.reached = int(np.random.randint(1, 6)), 0, False\n        self.path = [START]\n"
-                  "        return"), "FAIL seeded determinism"),
+    # an observation drawn from numpy's global generator, not from the reset seed
+    "unseeded": (("np.array([self.pos / 6, self.t / STEPS, float(self.reached)], np.float32)",
+                  "np.array([self.pos / 6, self.t / STEPS * (1 - 0.5 * np.random.random()), float(self.reached)], "
+                  "np.float32)"), "FAIL seeded determinism"),
     "an instruction word outside the vocabulary": (
         ('f"go to the {COLOURS[task_id]} cell"', 'f"walk to the {COLOURS[task_id]} cell"'),
         "FAIL vocabulary: task 0: instruction 'walk to the red cell'"),

@@ -193,3 +193,49 @@ def test_clean_removes_dead_teaching_temporaries_and_refuses_a_linked_teaching_f
     err = capsys.readouterr().err
     assert "teaching" in err and "symbolic link" in err and err.count("\n") == 1
     assert (victim / "_tmp-x-ep.parquet").read_text() == "precious" and sorted(p for p in root.rglob("*")) == before
+
+
+def test_a_linked_folder_of_a_run_dir_is_refused_by_every_command_that_walks_it(tmp_path, capsys):
+    """A run dir whose ``buffer`` (or ``checkpoints``, ``teaching``) is a link to another run's:
+    verify, inspect, clean and train --resume refuse in one line and touch nothing there."""
+    import shutil
+
+    other = _buffer(tmp_path / "other")
+    before = sorted(p for p in other.rglob("*"))
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("seed: 0\n")
+    for name, target in (("buffer", other), ("checkpoints", tmp_path / "elsewhere"), ("teaching", tmp_path / "elsewhere")):
+        target.mkdir(exist_ok=True)
+        (run / name).symlink_to(target, target_is_directory=True)
+        for args in (["verify", str(run)], ["verify", "--quarantine", str(run)], ["inspect", str(run)],
+                     ["clean", str(run)], ["train", "--run-dir", str(run), "--resume", "--serial"]):
+            assert main(args) == 2, (name, args)
+            err = capsys.readouterr().err
+            assert err.count("\n") == 1 and f"{run / name} is a symbolic link" in err, (name, args, err)
+        (run / name).unlink()
+    assert sorted(p for p in other.rglob("*")) == before
+    shutil.rmtree(tmp_path / "elsewhere")
+
+
+def test_quarantine_moves_nothing_when_the_buffer_holds_a_link(tmp_path, capsys):
+    root = tmp_path / "run" / "buffer"
+    write_run(root, rounds=2)
+    victim = _victim(tmp_path)
+    manifests = sorted(p.name for p in (root / "manifests").iterdir())
+    link = root / "staging" / "round-000000" / "unit-00009"
+    link.parent.mkdir(parents=True, exist_ok=True)
+    link.symlink_to(victim, target_is_directory=True)
+    assert main(["verify", "--quarantine", str(root)]) == 2
+    assert "--quarantine moves nothing here" in capsys.readouterr().err
+    assert sorted(p.name for p in (root / "manifests").iterdir()) == manifests and not (root / "quarantine").exists()
+
+
+def test_clean_lists_dead_temporaries_of_any_suffix(tmp_path):
+    from learner.checkpoint import dead_temporaries
+
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in (".eval-test.json.tmp-999999999-1.json", ".report.html.tmp-999999999-2", ".eval.png.tmp-999999999.png"):
+        (run / name).write_text("half")
+    assert sorted(p.name for p in dead_temporaries(run)) == sorted(p.name for p in run.iterdir())

@@ -159,3 +159,66 @@ def test_verify_names_a_config_yaml_edited_after_the_run_wrote_it(plugin_run, tm
     assert done.returncode == 2 and not mark.exists()
     assert f"BAD  {copy / 'config.yaml'}: says env.domain_module: {evil}" in done.stdout, done.stdout
     assert "edited after the run wrote it" in done.stdout
+
+
+def test_an_installed_plug_in_is_not_imported_to_read_a_run(tmp_path):
+    """An installed package's entry point (a real dist-info on the path) builds its domain for
+    train and eval, and is never imported by verify, inspect, clean or suite status."""
+    site = tmp_path / "site"
+    dist = site / "marked_plugin-0.1.dist-info"
+    dist.mkdir(parents=True)
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: marked-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[gpl_dist.domains]\ncorridor = marked_corridor_ep\n")
+    (site / "marked_corridor_ep.py").write_text(CORRIDOR.read_text() + "\nimport os as _os\n"
+                                                "with open(_os.environ.get('GPL_TEST_PLUGIN_MARK', _os.devnull), 'a') as _f:\n"
+                                                "    _f.write('imported\\n')\n")
+    config = tmp_path / "corridor.yaml"
+    config.write_text("env: {domain: corridor}\ncollection: {num_workers: 1, num_corrections: 1, tasks_per_unit: 4}\n"
+                      "training: {num_rounds: 1, num_epochs_per_round: 1, batch_size: 16}\neval: {seeds: [0]}\n")
+    env = {"PYTHONPATH": str(site)}
+    trust, mark, run = tmp_path / "trust.json", tmp_path / "mark", tmp_path / "run"
+
+    def gpl(*args):
+        done = subprocess.run([GPL_DIST, *args], capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                              env=quiet_env(GPL_DIST_TRUST_FILE=str(trust), GPL_TEST_PLUGIN_MARK=str(mark), **env))
+        return done
+
+    done = gpl("train", "--config", str(config), "--serial", "--run-dir", str(run), "--no-progress")
+    assert done.returncode == 0, done.stderr[-2000:]
+    mark.unlink()
+    suite = tmp_path / "suite.yaml"
+    suite.write_text("evaluations:\n  test: {split: test, seeds: [0], num_corrections: 1, greedy_actions: false}\n"
+                     f"entries:\n  corridor-gpl:\n    base: {config}\n    seeds: [0]\n    evaluations: [test]\n")
+    for args in (["verify", str(run)], ["inspect", str(run)], ["clean", "--dry-run", str(run)],
+                 ["suite", "status", str(suite), "--out", str(tmp_path / "out")]):
+        done = gpl(*args)
+        assert done.returncode == 0, (args, done.stderr[-2000:])
+        assert not mark.exists(), f"{args[0]} imported the installed plug-in"
+    done = gpl("eval", "--run-dir", str(run), "--max-tasks", "2")
+    assert done.returncode == 0 and mark.exists(), done.stderr[-2000:]  # building the domain: an entry point may
+
+
+def test_a_cached_pyc_beside_the_plug_in_file_is_never_run(tmp_path):
+    """The file's own bytes run, the ones whose sha256 was checked: never a ``__pycache__`` .pyc
+    that Python's loader would take when its recorded mtime and size match."""
+    import os
+    import py_compile
+    import sys
+
+    from gpl_dist.domains import load_domain_module
+
+    folder = tmp_path / "plug"
+    folder.mkdir()
+    benign = CORRIDOR.read_text().replace('name="corridor"', 'name="pyc_check"').replace("gpl-test/Corridor-v0",
+                                                                                           "gpl-test/PycCheck-v0")
+    hostile = benign + "\nraise SystemExit('the cached pyc ran')\n"
+    benign += "\n#" + " " * (len(hostile) - len(benign) - 3) + "\n"  # the same size as the hostile source
+    assert len(benign) == len(hostile)
+    source = folder / "pyc_check.py"
+    source.write_text(hostile)
+    cached = folder / "__pycache__" / f"pyc_check.{sys.implementation.cache_tag}.pyc"
+    py_compile.compile(str(source), cfile=str(cached))
+    stat = source.stat()
+    source.write_text(benign)
+    os.utime(source, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # what the pyc records: a loader would trust it
+    assert load_domain_module(str(source)) == ("pyc_check",)

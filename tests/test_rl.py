@@ -204,7 +204,7 @@ def test_points_of_an_entry_not_trained_yet_are_left_for_a_later_run(tmp_path):
 
 
 @pytest.mark.parametrize("change, needle", [
-    ({"tasks": {"multiroom": [99999]}}, "task ids must be distinct and in"),
+    ({"tasks": {"multiroom": [99999]}}, "task ids must be in 0..3239"),
     ({"pretrained": {"multiroom": "nope"}}, "no entry 'nope'"),
     ({"ppo": {"n_step": 5}}, "unknown PPO setting"),
     ({"ppo": {"multiroom": {"batch_sise": 5}}}, r"ppo\.multiroom\.batch_sise: unknown PPO setting"),

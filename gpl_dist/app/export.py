@@ -327,7 +327,7 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     domains = {s[3] for s in sources}
     if len(domains) != 1:
         raise UsageError(f"{log_dir}: logs of several domains ({', '.join(sorted(domains))}); export one domain a folder")
-    domain = get_domain(domains.pop())
+    domain_name = domains.pop()
     policies: dict[tuple, Any] = {}
     for run, ckpt, greedy, _ in sources:
         run = str(run_dir) if run_dir else run
@@ -335,6 +335,7 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
             raise UsageError(f"the checkpoint {ckpt} the logs name is not here: export on the machine that taught, "
                              "or restore the run and give --run-dir")
         policies[(run, ckpt, greedy)] = load_policy(run, ckpt, greedy=greedy, allow_foreign=True)
+    domain = get_domain(domain_name)  # after the runs' configs: a plug-in domain is registered by them, as allowed
     first = next(iter(policies.values()))
     vocab = domain.vocabulary_for(first.cfg.model.paraphrases)
     if not dataset_id:  # RUN/teaching/log: named after the run, so two runs' logs do not share an id

@@ -8,14 +8,13 @@ symbolic link out of the run: the buffer's own walks refuse links (``storage.fs`
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from gpl_dist.config import load_config
 from gpl_dist.errors import RunDirError
+from learner.identity import refuse_linked_folders
 from storage import clean_leftovers
-from storage.errors import LinkError
 from storage.lease import Lease
 from storage.manifest import is_buffer
 from storage.verify import VerifyReport, verify_buffer
@@ -26,6 +25,7 @@ def buffer_root(path: str) -> str:
     buffer; ``RunDirError`` when ``path`` holds neither."""
     p = Path(path)
     if (p / "config.yaml").is_file():
+        refuse_linked_folders(p)
         location = load_config(p / "config.yaml", plugins="none").buffer.location
         return location or str(p / "buffer")
     if "://" not in path and not p.exists():
@@ -97,19 +97,20 @@ def clean_run(run_dir: str, dry_run: bool = False) -> Cleaned:
     """Remove the leftovers of dead writers: the buffer's (``storage.clean_leftovers``), the run
     dir's own temporaries (``learner.checkpoint.dead_temporaries``) and its teaching logs' and
     GIFs' (``gpl_dist.app.teaching.teaching_leftovers``), under the leases and the teaching
-    folder's lock. A symbolic link where it would look is refused before anything is removed."""
-    for folder in ("checkpoints",):  # a linked folder would make its listing someone else's files
-        linked = Path(run_dir) / folder
-        if linked.is_symlink():
-            raise LinkError(f"{folder} in {run_dir} is a symbolic link (to {os.readlink(linked)[:200]}); gpl-dist never "
-                            "follows a link inside a run: nothing removed", folder)
+    folder's lock. A symbolic link where it would look (a linked ``buffer``, ``checkpoints`` or
+    ``teaching``: ``buffer_root``; one inside them) is refused before anything is removed, and so is
+    a buffer of another run than the run dir's."""
     from gpl_dist.app.teaching import teaching_leftovers
+    from learner.identity import read_identity
+    from storage.manifest import buffer_run_id
 
-    root = buffer_root(run_dir)
+    root = buffer_root(run_dir)  # refuses a linked folder of the run dir first
+    identity = read_identity(run_dir) if (Path(run_dir) / "config.yaml").is_file() else None
+    marked = buffer_run_id(root) if identity is not None else None
+    if identity is not None and marked is not None and marked != identity.run_id:
+        raise RunDirError(f"the buffer at {root} belongs to run {marked[:64]}, not to {run_dir}'s run "
+                          f"{identity.run_id[:64]}: nothing removed (clean that run's own dir)")
     teaching = Path(run_dir) / "teaching"
-    if teaching.is_symlink():  # refused before anything is removed, as the buffer's and checkpoints' links are
-        raise LinkError(f"teaching in {run_dir} is a symbolic link (to {os.readlink(teaching)[:200]}); gpl-dist never "
-                        "follows a link inside a run: nothing removed", "teaching")
     teaching_leftovers(teaching, dry_run=True)  # a link inside it is refused here, before anything is removed
     removed = clean_leftovers(root, dry_run=dry_run) + _run_dir_temporaries(run_dir, dry_run)
     removed += teaching_leftovers(teaching, dry_run=dry_run)

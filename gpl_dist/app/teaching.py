@@ -657,6 +657,10 @@ def ensure_folder(path: str | Path) -> Path:
     """``path`` as a folder, made with its parents when missing; ``TeachingWriteError`` (one line)
     when it is a file or cannot be made."""
     path = Path(path)
+    if path.is_symlink() or path.parent.is_symlink():  # the teaching folder and its log/ and gifs/: never followed
+        linked = path if path.is_symlink() else path.parent
+        raise TeachingWriteError(f"{linked} is a symbolic link: gpl-dist never writes through one (give a real folder)",
+                                 errno.ELOOP)
     if path.exists() and not path.is_dir():
         raise TeachingWriteError(f"{path} is not a folder (a file has its name)", errno.ENOTDIR)
     try:
@@ -701,6 +705,9 @@ def check_out_folder(out: str | Path) -> Path:
     (made when missing, with ``log``) in which a file can be made. ``TeachingError`` (one line)
     otherwise: a file in its place, no permission, a read-only disk."""
     out = Path(out)
+    for folder in (out, out / "log", out / "gifs"):
+        if folder.is_symlink():
+            raise TeachingError(f"{folder} is a symbolic link: gpl-dist never writes through one (give a real folder)")
     if out.exists() and not out.is_dir():
         raise TeachingError(f"--out {out} is not a folder: give a folder for the teaching log (OUT/log)")
     try:

@@ -27,6 +27,7 @@ import filecmp
 import json
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 from gpl_dist.app.suite.evidence import (
@@ -97,14 +98,21 @@ def _put_run(src: Path, dst: Path, names: list[Path]) -> None:
     """Make ``dst`` hold exactly ``names`` copied from ``src``, whole: staged beside it, then
     swapped in (a killed copy leaves the old run dir, or none, never a mix of two versions)."""
     _refuse_links(src, names)
-    staging, old = dst.with_name(f".{dst.name}.staging"), dst.with_name(f".{dst.name}.old")
-    shutil.rmtree(staging, ignore_errors=True)
-    for name in names:
-        _copy(src / name, staging / name)
-    if dst.exists():
-        shutil.rmtree(old, ignore_errors=True)
-        dst.replace(old)
-    staging.replace(dst)
+    for folder in (dst.parent.parent, dst.parent, dst):  # the archive (or suite output), the entry, the run
+        if folder.is_symlink():
+            raise EvidenceError(f"{folder} is a symbolic link: nothing is written through one")
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{dst.name}.staging-", dir=dst.parent))  # new: never a planted one
+    old = dst.with_name(f".{dst.name}.old-{staging.name.rsplit('-', 1)[-1]}")
+    try:
+        for name in names:
+            _copy(src / name, staging / name)
+        if dst.exists():
+            dst.replace(old)
+        staging.replace(dst)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     shutil.rmtree(old, ignore_errors=True)
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from gpl_dist.config import ConfigError
-from gpl_dist.domains import get_domain
+from gpl_dist.domains import get_domain, is_loaded
 from learner.ppo import PPOSettings
 from learner.rl import RL_METHODS, RLJob
 
@@ -73,11 +73,12 @@ def parse_rl_plan(where: str, raw: Any, entry_names: tuple[str, ...]) -> RLPlan:
     expect(isinstance(raw["tasks"], dict) and bool(raw["tasks"]), "tasks", "expected domain: [task ids]")
     tasks = {}
     for domain, ids in raw["tasks"].items():
-        spec = get_domain(domain)
         ok = isinstance(ids, list) and ids and all(isinstance(t, int) and not isinstance(t, bool) for t in ids)
         expect(bool(ok), f"tasks.{domain}", "expected a list of task ids")
-        expect(all(0 <= t < spec.num_tasks for t in ids) and len(set(ids)) == len(ids), f"tasks.{domain}",
-               f"task ids must be distinct and in 0..{spec.num_tasks - 1}")
+        expect(len(set(ids)) == len(ids), f"tasks.{domain}", "task ids must be distinct")
+        if is_loaded(domain):  # an installed plug-in's domain is not imported to read a suite file: checked when run
+            num_tasks = get_domain(domain).num_tasks
+            expect(all(0 <= t < num_tasks for t in ids), f"tasks.{domain}", f"task ids must be in 0..{num_tasks - 1}")
         tasks[domain] = tuple(ids)
     seeds = raw["seeds"]
     expect(isinstance(seeds, list) and bool(seeds) and all(isinstance(s, int) and s >= 0 for s in seeds), "seeds",

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from gpl_dist.config import load_config
 from gpl_dist.corrections import CONSTANT_KINDS
-from gpl_dist.domains import domain_names
+from gpl_dist.domains import is_loaded
 from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
@@ -254,7 +254,7 @@ def run_setup(run_dir: Path) -> RunSetup:
         raise RunDirError(f"{path}: cannot read the run's domain, rounds and training split "
                           f"({type(err).__name__}: {err})") from None
     domain, rounds, train_split = _CONFIGS[key]
-    known = domain in domain_names()
+    known = is_loaded(domain)  # an installed plug-in is not imported to read a run
     return RunSetup(domain, rounds, train_split, known, valid_split(domain, train_split) if known else None)
 
 
