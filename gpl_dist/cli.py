@@ -110,12 +110,11 @@ def _train_seeds(args: argparse.Namespace, overrides: dict[str, str]) -> int:
     seeds = _parse_seeds(args.seeds) or ()
     if args.serial or args.address:
         raise UsageError("--seeds runs its runs at once on this machine's own Ray: leave out --serial and --address")
+    if not args.config and not args.resume:
+        raise UsageError("--config is required (unless --resume, which goes on with each run's latest checkpoint's config)")
     runs = []
     for seed in seeds:
         run_dir = Path(args.run_dir) / f"seed{seed}"
-        if not args.config and not args.resume:
-            raise UsageError("--config is required (unless --resume, which goes on with each run's latest checkpoint's "
-                             "config)")
         runs.append((load_config(args.config, {**overrides, "seed": str(seed)}, plugins="own") if args.config
                      else resume_config(str(run_dir), overrides), str(run_dir)))
     train_at_once(runs, resume=args.resume)

@@ -34,6 +34,7 @@ import sys
 from importlib.metadata import entry_points
 from pathlib import Path
 
+from gpl_dist.atomic import write_atomic
 from gpl_dist.errors import UsageError
 from gpl_dist.roles import DomainSpec
 
@@ -185,20 +186,18 @@ def trust_domain_module(ref: str) -> None:
     if entry in entries:
         return
     path = trust_file()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
-        tmp.write_text(json.dumps([*entries, entry], indent=1) + "\n")
-        os.replace(tmp, path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(path, json.dumps([*entries, entry], indent=1) + "\n")
     except OSError:
-        tmp.unlink(missing_ok=True)  # trust is then asked for again next time; nothing else is lost
+        pass  # trust is then asked for again next time; nothing else is lost
 
 
 def _loaded(ref: str) -> bool:
-    name, _ = _module_key(ref)
-    if not ref.strip().endswith(".py"):
-        return name in sys.modules
-    return _file_module_name(Path(name)) in sys.modules
+    ref = str(ref).strip()
+    if not ref.endswith(".py"):
+        return ref in sys.modules
+    return _file_module_name(Path(ref).expanduser().resolve()) in sys.modules
 
 
 def _entry_point_modules() -> set[str]:

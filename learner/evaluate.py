@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gpl_dist.atomic import savefig_atomic, write_atomic  # noqa: F401  (write_atomic: swap.py's too)
+from gpl_dist.atomic import savefig_atomic, write_atomic
 from gpl_dist.config import MAX_CORRECTIONS, ConfigError, RunConfig, config_from_dict, load_config
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain

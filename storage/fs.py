@@ -4,8 +4,9 @@ Everything in ``storage`` goes through :class:`Location`, which holds an fsspec 
 root path inside it, and speaks in paths relative to the root. On a local disk no path below the
 root may pass through a symbolic link: every path is checked (``LinkError`` names the link), walks
 list a link as an entry and never descend into it, and nothing is ever removed or moved through
-one. A run dir copied from someone else cannot make a command touch files outside it. Bytes are written under a temporary
-name starting with ``_tmp-`` (ignored by pyarrow datasets) and then renamed into place. On a local
+one, so a run dir copied from someone else cannot make a command touch files outside it. Bytes
+are written under a temporary name starting with ``_tmp-`` (ignored by pyarrow datasets) and
+then renamed into place. On a local
 disk that rename is ``os.replace`` (atomic); on object stores a "rename" is copy + delete, which is
 why the round manifest, written last, is the commit point.
 """

@@ -22,10 +22,11 @@ from pathlib import Path
 from gpl_dist.app.suite.curves import CurveSettings, curve_tasks, suite_run_dirs
 from gpl_dist.app.suite.evidence import read_json, sha256_file
 from gpl_dist.app.suite.rundata import SWAP_FILE
+from gpl_dist.atomic import write_atomic
 from gpl_dist.errors import RunDirError
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST
-from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy, write_atomic
+from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy
 
 
 def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
