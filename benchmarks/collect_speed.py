@@ -16,8 +16,10 @@ Rows, for each domain:
 - a naive loop, as the authors' code and the imitation library collect: one env at a time, a
   batch-1 policy forward and an expert query per step, corrections in the same process, no
   storage;
-- for reference, the batched policy forward alone at the unit's batch size: every labelled tuple
-  costs one state of it, next to one env step.
+- for reference, the batched policy forward alone at the unit's batch size, the expert labelling
+  the unit's envs alone, and (MuJoCo) the simulator's own ``mj_step``: every labelled tuple costs
+  one step, one state of the forward and one label, so their sum bounds the fraction of the 2-core
+  ceiling that any collection with these networks and labels can reach (the ``bound`` line).
 
 The networks are freshly initialised (seed 0): the policy then solves no task, every task runs
 all its attempts, and the tuple count is the largest a round can have. Run it alone: the figures
@@ -200,6 +202,53 @@ def naive_rate(tasks: tuple[int, ...], corrections: int, domain: str = "multiroo
     return n / (time.perf_counter() - t0)
 
 
+def expert_label_rate(batch: int, seconds: float, domain: str = "multiroom") -> float:
+    """States/s of the shipped config's expert labelling ``batch`` envs of training tasks alone (one
+    process): one ``label_batch`` call for a ``BatchExpert`` with soft labels, else one call per env,
+    as the rollout loop makes them each step."""
+    from gpl_dist.domains import get_domain
+    from gpl_dist.roles import BatchExpert
+    from gpl_dist.splits import split_tasks
+
+    d = get_domain(domain)
+    expert = d.experts[shipped_config(domain).env.expert or next(iter(d.experts))]()
+    envs = [d.make_env(t) for t in split_tasks(domain, "train")[:batch]]
+    for i, env in enumerate(envs):
+        env.reset(seed=i)
+    batched = expert.soft_labels and isinstance(expert, BatchExpert)
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        if batched:
+            expert.label_batch(envs)
+        else:
+            for env in envs:
+                expert.label(env) if expert.soft_labels else expert.act(env)
+        n += len(envs)
+    return n / (time.perf_counter() - t0)
+
+
+def physics_step_rate(seconds: float, domain: str) -> float | None:
+    """Steps/s of the simulator's own step (``mujoco.mj_step`` on the env's model and data, no
+    Python wrapper), for an env that has one; None otherwise."""
+    from gpl_dist.domains import get_domain
+
+    d = get_domain(domain)
+    env = d.make_env(0)
+    env.reset(seed=0)
+    sim = getattr(env, "unwrapped", env)
+    if not (hasattr(sim, "model") and hasattr(sim, "data")):
+        return None
+    import mujoco
+
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for _ in range(1000):
+            mujoco.mj_step(sim.model, sim.data)
+        n += 1000
+        sim.reset(seed=n)  # keep the scene in range
+    return n / (time.perf_counter() - t0)
+
+
 def run_domain(domain: str, args: argparse.Namespace) -> None:
     """Every row of ``domain``, printed once all are measured."""
     from gpl_dist.splits import split_tasks
@@ -213,6 +262,8 @@ def run_domain(domain: str, args: argparse.Namespace) -> None:
     rates = {w: gpl_dist_rate(w, tasks, args.corrections, per, domain) for w in args.actors}
     naive = naive_rate(tasks[: args.naive_tasks], args.corrections, domain)
     forward = policy_forward_rate(per, args.seconds, domain)
+    labels = expert_label_rate(per, args.seconds, domain)
+    physics = physics_step_rate(args.seconds, domain)
     print(f"== {domain}: {len(tasks)} tasks, {per} a unit, {args.corrections} corrections")
     print(f"{'bare env, random actions, 1 process':<44} {bare1:>10,.0f} steps/s")
     print(f"{'bare env, random actions, 2 processes':<44} {bare2:>10,.0f} steps/s   (2-core ceiling)")
@@ -221,6 +272,13 @@ def run_domain(domain: str, args: argparse.Namespace) -> None:
     print(f"{'naive loop (batch-1 policy, per-step expert)':<44} {naive:>10,.0f} tuples/s")
     print(f"{f'policy forward alone, batch {per}, 1 process':<44} {forward:>10,.0f} states/s"
           f"   ({1e6 / forward:.1f} us a state; a bare env step: {1e6 / bare1:.1f} us)")
+    print(f"{f'expert labels alone, batch {per}, 1 process':<44} {labels:>10,.0f} states/s   ({1e6 / labels:.1f} us a state)")
+    if physics is not None:
+        print(f"{'simulator step alone (mj_step), 1 process':<44} {physics:>10,.0f} steps/s   ({1e6 / physics:.1f} us a step)")
+    # what a labelled tuple costs at least on one core: its step, its state's forward and its label
+    floor_us = 1e6 / (physics or bare1) + 1e6 / forward + 1e6 / labels
+    print(f"bound: a tuple costs at least {floor_us:.1f} us on one core (step + forward + label), so 2 actors reach at "
+          f"most {2e6 / floor_us / bare2:.2f} of the 2-core ceiling")
     if 1 in rates and 2 in rates:
         w1, w2 = rates[1][0], rates[2][0]
         print(f"ratios: 2 actors / 2-core ceiling = {w2 / bare2:.2f} (target >= 0.5); 2 actors / 1 actor = {w2 / w1:.2f} "

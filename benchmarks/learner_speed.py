@@ -23,7 +23,9 @@ learner computes against what this CPU can compute, all measured in this run:
 - the **matmul peak**: GFLOP/s of a 1024 x 1024 fp32 matmul (and bf16 where the CPU has native
   bf16, ``learner.cpu.native_bf16``) on as many threads as the learner uses in all;
 - the learner's **fraction of that peak**: samples/s x FLOPs a sample / peak (target >= 50 %),
-  against the bf16 peak when the learner trains under bf16 autocast.
+  against the bf16 peak when the learner trains under bf16 autocast;
+- where the CPU has native bf16 and the config trains in fp32, the same learner again with
+  ``training.autocast=bf16`` on the same tensors, and its ratio to the fp32 learner.
 
 ``--with-load`` then trains gpl-dist again beside one busy process (a pure-Python spin loop) and
 prints the slowdown against the run alone (target: at most 2.5x on 2 cores).
@@ -32,6 +34,7 @@ prints the slowdown against the run alone (target: at most 2.5x on 2 cores).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import multiprocessing
 import tempfile
 import time
@@ -118,8 +121,6 @@ def plain_loop(cfg, tv, max_steps: int) -> tuple[float, int]:
 def gpl_dist_learner(cfg, tv, epochs: int) -> tuple[float, int, int]:
     """gpl-dist's learner as the config builds it, ``epochs`` epochs; (seconds, states, learners).
     The learner processes start before the clock does, as they do once per run."""
-    import dataclasses
-
     from gpl_dist.domains import get_domain
     from gpl_dist.models.build import build_model_from_config
     from learner.parallel import make_learner, resolve_num_learners
@@ -138,7 +139,6 @@ def step_flops(cfg, tv, num_batches: int = 8) -> float:
     """FLOPs a sample of the learner's own step (forward, backward, optimiser), counted by
     ``torch.utils.flop_counter.FlopCounterMode`` over ``num_batches`` batches of its epoch order,
     on a learner process of its own (the count is per state: data-parallel slices add up to it)."""
-    import dataclasses
 
     from torch.utils.flop_counter import FlopCounterMode
 
@@ -201,13 +201,21 @@ def bench_domain(domain: str, args) -> None:
     print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x (target >= 3.0)", flush=True)
     from learner.cpu import matmul_gflops, native_bf16
 
+    if native_bf16() and t.autocast == "none":  # the same learner under bf16 autocast, beside it
+        bf16_cfg = dataclasses.replace(cfg, training=dataclasses.replace(t, autocast="bf16"))
+        bf16_s, bf16_n, _ = gpl_dist_learner(bf16_cfg, tv, args.epochs)
+        print(f"[{domain}] gpl-dist learner, training.autocast=bf16: {bf16_n / bf16_s:>9,.0f} samples/s; "
+              f"{bf16_n / bf16_s / ours_rate:.2f}x the fp32 learner", flush=True)
+    elif not native_bf16():
+        print(f"[{domain}] bf16: not native on this CPU (no avx512_bf16/amx_bf16): training.autocast=bf16 is refused here")
+
     flops = step_flops(cfg, tv)
     # threads the learner computes on in all: each process's torch threads, and its conditioning thread
     used = learners * ((t.num_threads or max(1, threads // learners)) + int(t.conditioning_thread))
     peaks = {"fp32": matmul_gflops(used, torch.float32)}
     if native_bf16():
         peaks["bf16"] = matmul_gflops(used, torch.bfloat16)
-    trains_in = "bf16" if getattr(t, "autocast", "") == "bf16" and "bf16" in peaks else "fp32"
+    trains_in = "bf16" if t.autocast == "bf16" and "bf16" in peaks else "fp32"
     achieved = ours_rate * flops / 1e9
     print(f"[{domain}] FLOPs a sample of the learner's step: {flops / 1e3:,.0f} kFLOP (torch.utils.flop_counter)")
     print(f"[{domain}] matmul peak on {used} thread(s): " + ", ".join(f"{k} {v:,.1f} GFLOP/s" for k, v in peaks.items())

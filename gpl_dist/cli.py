@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import textwrap
 import traceback
@@ -37,28 +38,30 @@ def parse_overrides(pairs: list[str]) -> dict[str, str]:
 
 
 def cmd_train(args: argparse.Namespace) -> int:
-    """``gpl-dist train``: meta-train a run (Algorithm 1), fresh or ``--resume``."""
+    """``gpl-dist train``: meta-train a run (Algorithm 1), fresh or ``--resume``; with ``--seeds``, one
+    run per training seed in ``RUN_DIR/seed<k>``, as many at once as this machine's cores keep busy."""
+    from gpl_dist.app.suite.cluster import train_seeds
     from gpl_dist.config import load_config
     from learner.driver import resume_config, run_training
 
     overrides = parse_overrides(args.set)
     if args.num_workers is not None:
         overrides["collection.num_workers"] = str(args.num_workers)
-    if args.seeds is not None:
-        return _train_seeds(args, overrides)
     if args.config is None and not args.resume:
-        raise UsageError("--config is required (unless --resume, which goes on with the run's latest checkpoint's config)")
+        raise UsageError("--config is required (unless --resume, which goes on with the latest checkpoint's config)")
+    if args.seeds is not None:
+        if args.serial or args.address:
+            raise UsageError("--seeds runs its runs at once on this machine's own Ray: leave out --serial and --address")
+        train_seeds(args.config, args.run_dir, _parse_seeds(args.seeds) or (), overrides, resume=args.resume)
+        return 0
     # the user's own --config is imported as asked; a run's config only as gpl_dist.domains.domain_module_allowed says
-    cfg = (load_config(args.config, overrides, plugins="own") if args.config
-           else resume_config(args.run_dir, overrides))
+    cfg = load_config(args.config, overrides, plugins="own") if args.config else resume_config(args.run_dir, overrides)
     result = run_training(cfg, args.run_dir, serial=args.serial, address=args.address, resume=args.resume,
                           progress=not args.no_progress and sys.stderr.isatty())  # no bars in piped logs
     if result.history:
-        last = result.history[-1]
         print("\nfinal round, training tasks: cK is the mean completion (fraction of the task done) after K "
               "corrections; c0 follows the instruction alone:")
-        for k, v in enumerate(last.completion_by_corrections):
-            print(f"  c{k}: {v:.3f}")
+        print("\n".join(f"  c{k}: {v:.3f}" for k, v in enumerate(result.history[-1].completion_by_corrections)))
         print(f"run saved to {result.run_dir}; evaluate with: gpl-dist eval --run-dir {result.run_dir}")
     return 0
 
@@ -73,8 +76,7 @@ def cmd_config(args: argparse.Namespace) -> int:
     keys = describe_keys(args.section, args.domain)
     width = max(len(k.key) for k in keys)
     for k in keys:
-        default = "null (the domain's)" if k.default is None else (list(k.default) if isinstance(k.default, tuple)
-                                                                    else k.default)
+        default = list(k.default) if isinstance(k.default, tuple) else "null (the domain's)" if k.default is None else k.default
         print(f"{k.key:<{width}}  {k.type}, default {default!r}\n{'':<{width}}  {k.doc}")
     print(f"\n{len(keys)} key(s); set them in a YAML config (section: {{key: value}}) or with --set section.key=value")
     return 0
@@ -100,31 +102,7 @@ def cmd_check_domain(args: argparse.Namespace) -> int:
     return 0
 
 
-def _train_seeds(args: argparse.Namespace, overrides: dict[str, str]) -> int:
-    """``train --seeds``: one run per training seed, ``RUN_DIR/seed<k>``, as many at once as this
-    machine's cores keep busy (``gpl_dist.app.suite.cluster.train_at_once``)."""
-    from gpl_dist.app.suite.cluster import train_at_once
-    from gpl_dist.config import load_config
-    from learner.driver import resume_config
-
-    seeds = _parse_seeds(args.seeds) or ()
-    if args.serial or args.address:
-        raise UsageError("--seeds runs its runs at once on this machine's own Ray: leave out --serial and --address")
-    if not args.config and not args.resume:
-        raise UsageError("--config is required (unless --resume, which goes on with each run's latest checkpoint's config)")
-    runs = []
-    for seed in seeds:
-        run_dir = Path(args.run_dir) / f"seed{seed}"
-        runs.append((load_config(args.config, {**overrides, "seed": str(seed)}, plugins="own") if args.config
-                     else resume_config(str(run_dir), overrides), str(run_dir)))
-    train_at_once(runs, resume=args.resume)
-    print(f"trained {len(runs)} run(s) under {args.run_dir} (seed{seeds[0]} .. seed{seeds[-1]}); evaluate each with: "
-          f"gpl-dist eval --run-dir {args.run_dir}/seed<k>")
-    return 0
-
-
 def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
-
     if text is None:
         return None
     try:
@@ -137,125 +115,73 @@ def _parse_seeds(text: str | None) -> tuple[int, ...] | None:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    """``gpl-dist eval``: meta-test a run's checkpoint on held-out tasks (Algorithm 2)."""
-    from learner.evaluate import evaluate_run, format_table
+    """``gpl-dist eval``: meta-test a run's checkpoint on held-out tasks (Algorithm 2); writes its
+    record (``learner.evaluate.EvalRecord``) and its plot, and prints its table."""
+    from learner.evaluate import evaluate_run, format_table, plot
 
-    seeds = _parse_seeds(args.seeds)
-    result, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=seeds, split=args.split,
+    _check_eval_arguments(args)
+    record, path = evaluate_run(args.run_dir, num_corrections=args.corrections, seeds=_parse_seeds(args.seeds), split=args.split,
                                 max_tasks=args.max_tasks, checkpoint=args.checkpoint, greedy=args.greedy,
                                 phrasings=args.phrasings, foreign_checkpoint=args.foreign_checkpoint, out_dir=args.out,
                                 swap_instructions=args.swap_instructions)
-    import json
-    report = json.loads(path.read_text())
-    print(f"meta-test on {result.num_tasks} tasks x {len(result.per_seed)} seeds ({result.seconds:.1f}s):")
-    print(format_table(report["domain"], result,
-                       with_paper=report["reduced_scale"] is None and report["instructions"] == "own"))
-    if report["reduced_scale"]:
-        print(f"note: {report['reduced_scale']}")
+    plot(record, path.with_suffix(".png"))
+    print(f"meta-test on {record.num_tasks} tasks x {len(record.per_seed)} seeds ({record.seconds:.1f}s):")
+    print(format_table(record.domain, record, with_paper=record.with_paper))
+    if record.reduced_scale:
+        print(f"note: {record.reduced_scale}")
     print(f"wrote {path} and {path.with_suffix('.png')}")
     return 0
+
+
+def _check_eval_arguments(args: argparse.Namespace) -> None:
+    """``eval``'s arguments, before anything is loaded: counts in range, a foreign checkpoint's files
+    outside the run dir, and a folder to write into (made when ``--out`` names a new one)."""
+    from gpl_dist.config import MAX_CORRECTIONS
+
+    target = Path(args.out) if args.out is not None else Path(args.run_dir)
+    _check_foreign_out(args, "evaluation")
+    for name, value in (("corrections", args.corrections), ("max_tasks", args.max_tasks)):
+        if value is not None and value < 0:
+            raise UsageError(f"{name} must be >= 0, got {value}")
+    if args.corrections is not None and args.corrections > MAX_CORRECTIONS:
+        raise UsageError(f"corrections must be at most {MAX_CORRECTIONS}, got {args.corrections}")
+    if args.out is not None:
+        target.mkdir(parents=True, exist_ok=True)
+    if target.is_dir() and not os.access(target, os.W_OK):
+        raise UsageError(f"cannot write the report into {target} (no write permission)")
+
+
+def _check_foreign_out(args: argparse.Namespace, what: str) -> None:
+    if args.foreign_checkpoint and not args.out:
+        raise UsageError(f"--foreign-checkpoint writes nothing into {args.run_dir}: give --out DIR for the {what}")
+    if args.foreign_checkpoint and Path(args.out).resolve().is_relative_to(Path(args.run_dir).resolve()):
+        raise UsageError(f"--out {args.out} is inside {args.run_dir}: a foreign checkpoint's {what} goes elsewhere")
 
 
 def _names(text: str | None) -> tuple[str, ...]:
     return tuple(n.strip() for n in (text or "").split(",") if n.strip())
 
 
-def cmd_suite_run(args: argparse.Namespace) -> int:
-    """``gpl-dist suite run``: train and evaluate every unfinished run of a suite (resumable)."""
-    from gpl_dist.app.suite.runner import run_suite
-    from gpl_dist.app.suite.spec import load_suite
+def cmd_suite(args: argparse.Namespace) -> int:
+    """``gpl-dist suite SUBCOMMAND``: calls the subcommand (``gpl_dist.app.suite.commands``) with the
+    parsed arguments and prints its lines; its error line, where it has one, goes to stderr (exit 2)."""
+    from gpl_dist.app.suite import commands
 
-    if args.serial and args.address:
-        raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
-    suite = load_suite(args.suite)
-    run_suite(suite, args.out, only=_names(args.only), seeds=_parse_seeds(args.seeds) or (), address=args.address,
-              serial=args.serial, progress=not args.no_progress and sys.stderr.isatty(),
-              at_once=not (args.serial or args.one_at_a_time))
-    print(f"suite {args.suite}: every selected run is done; report with: gpl-dist suite report {args.out}")
-    return 0
-
-
-def cmd_suite_status(args: argparse.Namespace) -> int:
-    """``gpl-dist suite status``: each run's state, read from its files, and the predicted wall time
-    of what is left (``gpl_dist.app.suite.status``)."""
-    from gpl_dist.app.suite.spec import load_suite
-    from gpl_dist.app.suite.status import suite_status
-
-    suite = load_suite(args.suite, plugins="none")
-    status = suite_status(suite, args.suite, args.out, _names(args.only), _parse_seeds(args.seeds) or (), args.costs_from)
-    for line in status.lines:
-        print(line)
-    if status.refused:
-        print(f"gpl-dist: error: {status.refused} run(s) refused: their evidence fails its checksums or its own "
-              "consistency (named above); restore them again from the archive, or remove them to train them anew",
-              file=sys.stderr)
-        return 2
-    return 0
-
-
-def cmd_suite_rl(args: argparse.Namespace) -> int:
-    """``gpl-dist suite rl``: RL per test task against GPL and GPR (the suite file's ``rl`` section)."""
-    from gpl_dist.app.suite.rl_jobs import run_rl_plan
-    from gpl_dist.app.suite.spec import keep_copy, load_suite
-
-    if args.serial and args.address:
-        raise UsageError("--serial runs without Ray and --address runs on a Ray cluster: give one of them")
-    suite = load_suite(args.suite)
-    if suite.rl is None:
-        raise UsageError(f"{args.suite} has no 'rl' section")
-    keep_copy(suite, args.out)  # the report reads the RL results of this plan
-    ran = run_rl_plan(suite.rl, args.out, address=args.address, serial=args.serial, domains=_names(args.domains))
-    print(f"suite {args.suite}: {ran} RL job(s) ran; every selected one is done; report with: gpl-dist suite report {args.out}")
-    return 0
-
-
-def cmd_suite_report(args: argparse.Namespace) -> int:
-    """``gpl-dist suite report``: a suite's runs as a report (its own comparison, or the paper's
-    tables for the paper's suite), Markdown and HTML, with their evidence archived beside it."""
-    from gpl_dist.app.suite.archive import archive_runs
-    from gpl_dist.app.suite.report import ARCHIVE_DIR, build_report
-    from gpl_dist.errors import RunDirError
-
-    suite_out, out = Path(args.suite_out), Path(args.out)
-    if not suite_out.is_dir():
-        raise RunDirError(f"no suite output at {suite_out}")
-    archive = out / ARCHIVE_DIR
-    if archive.is_symlink():
-        raise RunDirError(f"{archive} is a symbolic link: the report's archive is written in place, never through one")
-    archive.mkdir(parents=True, exist_ok=True)
-    archive_runs(suite_out, archive)  # the evidence first: the report is computed from it
-    md, html = build_report(archive, out, source=suite_out)
-    print(f"wrote {md} and {html}")
-    return 0
-
-
-def cmd_suite_curves(args: argparse.Namespace) -> int:
-    """``gpl-dist suite curves``: each trained run's valid-split completion after every DAgger round."""
-    from gpl_dist.app.suite.curves import compute_curves
-
-    seeds = {int(s) for s in _names(args.seeds)} if args.seeds else None
-    written = compute_curves(args.suite_out, set(_names(args.only)) if args.only else None, seeds)
-    print(f"{len(written)} run(s) have their valid curve (curve-valid.json); the report draws them")
-    return 0
-
-
-def cmd_suite_swap(args: argparse.Namespace) -> int:
-    """``gpl-dist suite swap``: each trained run's valid completion told other tasks' instructions."""
-    from gpl_dist.app.suite.swap import compute_swaps
-
-    seeds = {int(s) for s in _names(args.seeds)} if args.seeds else None
-    written = compute_swaps(args.suite_out, set(_names(args.only)) if args.only else None, seeds)
-    print(f"{len(written)} run(s) have their instruction-swap control (instruction-swap-valid.json); the report tabulates them")
-    return 0
-
-
-def cmd_suite_restore(args: argparse.Namespace) -> int:
-    """``gpl-dist suite restore``: copy a report's archived runs into a suite output that lacks them."""
-    from gpl_dist.app.suite.archive import restore_runs
-
-    restored = restore_runs(args.archive, args.out)
-    print(f"restored {len(restored)} run(s) into {args.out}" + "".join(f"\n  {p}" for p in restored))
-    return 0
+    only, seeds = _names(getattr(args, "only", None)), _parse_seeds(getattr(args, "seeds", None)) or ()
+    calls = {
+        "run": lambda: commands.run(args.suite, args.out, only, seeds, address=args.address, serial=args.serial,
+                                    one_at_a_time=args.one_at_a_time, progress=not args.no_progress and sys.stderr.isatty()),
+        "status": lambda: commands.status(args.suite, args.out, only, seeds, args.costs_from),
+        "rl": lambda: commands.rl(args.suite, args.out, _names(args.domains), address=args.address, serial=args.serial),
+        "report": lambda: commands.report(args.suite_out, args.out),
+        "curves": lambda: commands.curves(args.suite_out, only, seeds),
+        "swap": lambda: commands.swap(args.suite_out, only, seeds),
+        "restore": lambda: commands.restore(args.archive, args.out)}
+    done = calls[args.suite_command]()
+    print("\n".join(done.lines))
+    if done.error:
+        print(f"gpl-dist: error: {done.error}", file=sys.stderr)
+    return 2 if done.error else 0
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -270,57 +196,44 @@ def cmd_render(args: argparse.Namespace) -> int:
             raise UsageError("--run-dir draws the run's policy on its own domain: leave out --env, --actions and --expert")
         frames = policy_attempt_frames(args.run_dir, args.task, args.attempts, seed=args.seed, checkpoint=args.checkpoint,
                                        foreign_checkpoint=args.foreign_checkpoint)
-        out = write_picture(frames, args.out)
-        print(f"wrote {out} ({len(frames)} frames)")
-        return 0
-    if not args.env:
-        raise UsageError("--env is required (or --run-dir, to draw a trained policy's attempts)")
-    from gpl_dist.domains import get_domain, load_domain_module
+    else:
+        if not args.env:
+            raise UsageError("--env is required (or --run-dir, to draw a trained policy's attempts)")
+        from gpl_dist.domains import get_domain, load_domain_module
 
-    if args.domain_module:  # named on the command line: imported as asked
-        load_domain_module(args.domain_module)
-    get_domain(args.env)  # an unknown name fails in one line naming the known ones
-    actions = parse_actions(args.actions) if args.actions else None
-    frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
+        if args.domain_module:  # named on the command line: imported as asked
+            load_domain_module(args.domain_module)
+        get_domain(args.env)  # an unknown name fails in one line naming the known ones
+        actions = parse_actions(args.actions) if args.actions else None
+        frames = attempt_frames(args.env, args.task, actions, expert=args.expert, seed=args.seed)
     out = write_picture(frames, args.out)
     print(f"wrote {out} ({len(frames)} frame{'s' if len(frames) != 1 else ''})")
     return 0
 
 
-def _teacher(args: argparse.Namespace):
+def cmd_teach(args: argparse.Namespace) -> int:
+    """``gpl-dist teach`` (correct a trained policy by typing, attempt after attempt) and ``gpl-dist
+    serve`` (the same in a web page)."""
     from gpl_dist.app.teaching import Teacher
 
-    if args.foreign_checkpoint and not args.out:
-        raise UsageError(f"--foreign-checkpoint writes nothing into {args.run_dir}: give --out DIR for the teaching log")
-    if args.foreign_checkpoint and Path(args.out).resolve().is_relative_to(Path(args.run_dir).resolve()):
-        raise UsageError(f"--out {args.out} is inside {args.run_dir}: a foreign checkpoint's teaching log goes elsewhere")
-    return Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy,
-                   allow_foreign=args.foreign_checkpoint)
+    if getattr(args, "task", None) is not None and args.instruction is not None:
+        raise UsageError("give --task or --instruction, not both")
+    _check_foreign_out(args, "teaching log")
+    teacher = Teacher(args.run_dir, args.checkpoint, max_corrections=args.max_corrections, greedy=args.greedy,
+                      allow_foreign=args.foreign_checkpoint)
+    out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
+    if args.command == "serve":
+        from gpl_dist.app.teach_web import serve
 
-
-def cmd_teach(args: argparse.Namespace) -> int:
-    """``gpl-dist teach``: correct a trained policy by typing, attempt after attempt."""
+        serve(teacher, out, host=args.host, port=args.port, split=args.split)
+        return 0
     from gpl_dist.app.teach_terminal import teach_in_terminal
     from gpl_dist.splits import split_tasks
 
-    if args.task is not None and args.instruction is not None:
-        raise UsageError("give --task or --instruction, not both")
-    teacher = _teacher(args)
     task_id = teacher.resolve_task(args.task, args.instruction, args.seed, args.split)
     if args.task is not None and task_id not in split_tasks(teacher.domain.name, args.split):
         print(f"note: task {task_id} is not in the {args.split} split")
-    out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
     teach_in_terminal(teacher.episode(task_id, args.seed, "terminal"), out, always_hint=args.hint)
-    return 0
-
-
-def cmd_serve(args: argparse.Namespace) -> int:
-    """``gpl-dist serve``: the teaching loop in a web page."""
-    from gpl_dist.app.teach_web import serve
-
-    teacher = _teacher(args)
-    out = Path(args.out) if args.out else Path(args.run_dir) / "teaching"
-    serve(teacher, out, host=args.host, port=args.port, split=args.split)
     return 0
 
 
@@ -330,98 +243,36 @@ def cmd_export(args: argparse.Namespace) -> int:
     from gpl_dist.app.export import export_minari, export_teaching_minari, is_teaching_log
     from gpl_dist.app.rundir import buffer_root
 
-    if is_teaching_log(args.run_dir):
-        dataset_id, n = export_teaching_minari(args.run_dir, args.out, args.dataset_id, run_dir=args.teaching_run_dir)
-    else:
-        if args.teaching_run_dir:
-            raise UsageError(f"--teaching-run-dir is for a folder of teaching logs; {args.run_dir} is not one")
-        dataset_id, n = export_minari(args.run_dir, buffer_root(args.run_dir), args.out, args.dataset_id)
+    teaching = is_teaching_log(args.run_dir)
+    if args.teaching_run_dir and not teaching:
+        raise UsageError(f"--teaching-run-dir is for a folder of teaching logs; {args.run_dir} is not one")
+    dataset_id, n = (export_teaching_minari(args.run_dir, args.out, args.dataset_id, run_dir=args.teaching_run_dir)
+                     if teaching else export_minari(args.run_dir, buffer_root(args.run_dir), args.out, args.dataset_id))
     print(f"wrote Minari dataset {dataset_id} ({n} episodes, one per attempt) under {args.out}; read it with "
           f"MINARI_DATASETS_PATH={args.out} python -c \"import minari; print(minari.load_dataset('{dataset_id}'))\"")
     return 0
 
 
-def cmd_inspect(args: argparse.Namespace) -> int:
-    """``gpl-dist inspect``: verify a run's buffer, then summarise it."""
-    from gpl_dist.app.rundir import buffer_root, no_buffer_note
-    from storage import format_inspection
-    from storage.verify import verify_buffer
+def cmd_run_dir(args: argparse.Namespace) -> int:
+    """``gpl-dist inspect`` (verify a run's buffer, then summarise it), ``verify`` (check every
+    committed file and checkpoint; ``--quarantine`` sets bad rounds aside) and ``clean`` (remove dead
+    writers' leftovers from a run no process holds): ``gpl_dist.app.rundir``."""
+    from gpl_dist.app import rundir
 
-    root = buffer_root(args.run_dir)
-    note = no_buffer_note(args.run_dir, root)
-    if note:
-        print(note)
-        return 0
-    report = verify_buffer(root, checksums=not args.no_verify)
-    for p in report.problems:
-        print(f"BAD  {p.path}: {p.message}")
-    report.raise_if_bad(f"run gpl-dist verify {args.run_dir} for the list and docs/buffer.md (Recovering)")
-    print(format_inspection(root, show_tasks=args.tasks))
-    return 0
-
-
-def cmd_verify(args: argparse.Namespace) -> int:
-    """``gpl-dist verify``: check every committed file and checkpoint; ``--quarantine`` sets bad rounds aside."""
-    from gpl_dist.app.rundir import buffer_root, report_lines, run_checks
-    from storage.lease import Lease
-    from storage.verify import quarantine_round, verify_buffer
-
-    root = buffer_root(args.run_dir)
-    checks = run_checks(args.run_dir, root)
-    for line in ([checks.note] if checks.note else []) + [f"BAD  {line}" for line in checks.problems]:
-        print(line)
-    if checks.problems:
-        print(f"gpl-dist: error: {len(checks.problems)} problem(s) with {args.run_dir}'s config.yaml or checkpoints "
-              "(named above; verify never moves them)", file=sys.stderr)
-    if not args.quarantine:
-        report = verify_buffer(root, run_id=checks.run_id)
-        print("\n".join(report_lines(report)))
+    if args.command == "inspect":
+        rundir.inspect_run(args.run_dir, show_tasks=args.tasks, checksums=not args.no_verify)
+    elif args.command == "clean":
+        print("\n".join(rundir.clean_run(args.run_dir, dry_run=args.dry_run).lines(args.run_dir)))
     else:
-        with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
-            report = verify_buffer(root, run_id=checks.run_id)
-            print("\n".join(report_lines(report)))
-            refuse = [p for p in report.problems if p.kind == "link" or (p.kind == "foreign" and p.round_index is None)]
-            if refuse:  # a link, or a whole buffer of another run: setting rounds aside would move what is not ours
-                raise UsageError(f"--quarantine moves nothing here: {refuse[0].path}: {refuse[0].message} "
-                                 "(remove the link, or verify the run the buffer belongs to)")
-            for r in report.bad_rounds:
-                moved = quarantine_round(root, r)
-                what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
-                print(f"quarantined round {r}: {what} under quarantine/")
-            if report.bad_rounds:
-                report = verify_buffer(root, run_id=checks.run_id)
-                print("\n".join(report_lines(report)))
-        if report.ok and not checks.problems:
-            print(f"resume with: gpl-dist train --run-dir {args.run_dir} --resume "
-                  "(rounds after the last checkpoint are collected again)")
-    if report.ok:
-        return 2 if checks.problems else 0
-    print(f"gpl-dist: error: {len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
-          "(set them aside with --quarantine; see docs/buffer.md, Recovering)", file=sys.stderr)
-    return 2
-
-
-def cmd_clean(args: argparse.Namespace) -> int:
-    """``gpl-dist clean``: remove dead writers' leftovers from a run no process holds."""
-    from gpl_dist.app.rundir import clean_run
-
-    cleaned = clean_run(args.run_dir, dry_run=args.dry_run)
-    verb = "would remove" if args.dry_run else "removed"
-    for path in cleaned.removed:
-        print(f"{verb} {path}")
-    print(f"{verb} {len(cleaned.removed)} leftover(s)")
-    if cleaned.unlisted:
-        print(f"kept {cleaned.unlisted} path(s) under data/ that no manifest lists (clean never removes committed "
-              f"data); see gpl-dist verify {args.run_dir}")
+        errors = rundir.verify_run(args.run_dir, quarantine=args.quarantine)
+        for line in errors:
+            print(f"gpl-dist: error: {line}", file=sys.stderr)
+        return 2 if errors else 0
     return 0
 
 
-def _add_version(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--version", action="version", version=f"gpl-dist {__version__}",
-                        help="print the version and exit")
-
-
-def _add_foreign_checkpoint(p: argparse.ArgumentParser) -> None:
+def _add_checkpoint(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    p.add_argument("--checkpoint", help=f"{prefix}checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
     p.add_argument("--foreign-checkpoint", action="store_true",
                    help="use a --checkpoint of another run, domain or model (refused otherwise); nothing is then "
                         "written into RUN_DIR")
@@ -440,7 +291,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="gpl-dist",
                                      description="Guiding Policies with Language: distributed DAgger meta-training.")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level")
-    _add_version(parser)
+    parser.add_argument("--version", action="version", version=f"gpl-dist {__version__}", help="print the version and exit")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("train", help="meta-train a GPL policy (Algorithm 1)",
@@ -475,9 +326,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_config)
 
     p = sub.add_parser("eval", help="meta-test a trained run on held-out tasks (Algorithm 2)",
-                       description="Meta-test a trained run. Writes RUN_DIR/eval.json and eval.png with the run's "
-                                   "own eval settings; other settings write eval-<what differs>.json/.png "
-                                   "(eval-greedy.json, eval-c10.json, ...), leaving eval.json as it was.")
+                       description="Meta-test a trained run. Writes RUN_DIR/eval.json and eval.png with the run's own eval "
+                       "settings; others write eval-<what differs>.json/.png (eval-greedy.json, eval-c10.json, ...).")
     p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt and config.yaml)")
     _add_trust(p)
     p.add_argument("--corrections", type=int, help="corrections to give (default: eval.num_corrections)")
@@ -491,8 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "instruction scores the same as without this); on the run's valid split (valid, or "
                         "heldout4_valid for a run trained on heldout4_train) unless --split; "
                         "writes eval-<split>-...-swapped-instructions.json")
-    p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
-    _add_foreign_checkpoint(p)
+    _add_checkpoint(p)
     p.add_argument("--out", help="folder for the evaluation's files (default RUN_DIR; required with --foreign-checkpoint)")
     acting = p.add_mutually_exclusive_group()
     acting.add_argument("--greedy", dest="greedy", action="store_true", default=None, help="act with the most likely action")
@@ -500,55 +349,44 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_eval)
 
     p = sub.add_parser("suite", help="run the paper's experiments (a suite file) and report them")
+    p.set_defaults(func=cmd_suite)  # each subcommand: gpl_dist.app.suite.commands
     suite_sub = p.add_subparsers(dest="suite_command", required=True)
-    for name, func, text in (("run", cmd_suite_run, "train and evaluate every unfinished run; resumes a killed suite"),
-                             ("status", cmd_suite_status, "each run's state, read from its files, and the predicted "
-                                                          "wall time of what is left")):
-        q = suite_sub.add_parser(name, help=text)
-        q.add_argument("suite", help="suite file (e.g. configs/suites/paper.yaml)")
-        q.add_argument("--out", required=True, help="the suite's folder of run dirs (OUT/<entry>/seed<k>)")
-        q.add_argument("--only", help="comma-separated entry names")
-        q.add_argument("--seeds", help="comma-separated training seeds")
-        if name == "run":
-            q.add_argument("--address", help="a Ray cluster: run the entries at once, each as a Ray task")
-            q.add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
-            q.add_argument("--one-at-a-time", action="store_true", help="one run after another, each with its config's "
-                           "workers (default: as many runs at once as keep this machine's cores busy)")
-            q.add_argument("--no-progress", action="store_true", help="no progress bars")
-            _add_trust(q)
-        else:
-            q.add_argument("--costs-from", help="predict from the finished runs and RL results of this suite folder "
-                                                "(default: --out's own)")
-        q.set_defaults(func=func)
-    q = suite_sub.add_parser("rl", help="RL per test task (stable-baselines3 PPO) against GPL and GPR: the suite's rl section")
-    q.add_argument("suite", help="suite file with an 'rl' section (e.g. configs/suites/paper.yaml)")
-    q.add_argument("--out", required=True, help="the suite's folder of run dirs; results go to OUT/rl/")
-    q.add_argument("--domains", help="comma-separated domains (default: every domain of the rl section)")
-    q.add_argument("--address", help="a Ray cluster (default: local Ray with every core)")
-    q.add_argument("--serial", action="store_true", help="one job after another in this process, without Ray")
-    _add_trust(q)
-    q.set_defaults(func=cmd_suite_rl)
-    q = suite_sub.add_parser("report", help="a suite's runs as a report (its own comparison against its reference "
-                             "entry, or the paper's tables for the paper's suite), Markdown and HTML")
-    q.add_argument("suite_out", help="the suite's folder of run dirs")
-    q.add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
-    q.set_defaults(func=cmd_suite_report)
-    for name, text, func in (
-            ("curves", "each trained run's valid-split completion after every round (its per-round weights; "
-             "resumes, skips finished curves)", cmd_suite_curves),
-            ("swap", "each trained run's valid-split completion with its tasks' own instructions and told another "
-             "task's: does it read its instruction? (skips finished runs)", cmd_suite_swap)):
-        q = suite_sub.add_parser(name, help=text)
-        q.add_argument("suite_out", help="the suite's folder of run dirs")
-        q.add_argument("--only", help="comma-separated entry names")
-        q.add_argument("--seeds", help="comma-separated training seeds")
-        _add_trust(q)
-        q.set_defaults(func=func)
-    q = suite_sub.add_parser("restore", help="copy a report's archived runs (REPORT/runs) into a suite output, "
-                             "where 'suite run' then skips them")
-    q.add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")
-    q.add_argument("--out", required=True, help="the suite's folder of run dirs; run dirs already there are kept")
-    q.set_defaults(func=cmd_suite_restore)
+    q = {name: suite_sub.add_parser(name, help=text) for name, text in (
+        ("run", "train and evaluate every unfinished run; resumes a killed suite"),
+        ("status", "each run's state, read from its files, and the predicted wall time of what is left"),
+        ("rl", "RL per test task (stable-baselines3 PPO) against GPL and GPR: the suite's rl section"),
+        ("report", "a suite's runs as a report (its own comparison against its reference entry, or the paper's tables "
+                   "for the paper's suite), Markdown and HTML"),
+        ("curves", "each trained run's valid-split completion after every round (its per-round weights; resumes, skips "
+                   "finished curves)"),
+        ("swap", "each trained run's valid-split completion with its tasks' own instructions and told another task's: "
+                 "does it read its instruction? (skips finished runs)"),
+        ("restore", "copy a report's archived runs (REPORT/runs) into a suite output, where 'suite run' then skips them"))}
+    for name in ("run", "status", "rl"):
+        q[name].add_argument("suite", help="suite file" + (" with an 'rl' section" if name == "rl" else "")
+                             + " (e.g. configs/suites/paper.yaml)")
+        q[name].add_argument("--out", required=True, help="the suite's folder of run dirs (OUT/<entry>/seed<k>)"
+                             + ("; results go to OUT/rl/" if name == "rl" else ""))
+    for name in ("report", "curves", "swap"):
+        q[name].add_argument("suite_out", help="the suite's folder of run dirs")
+    for name in ("run", "status", "curves", "swap"):
+        q[name].add_argument("--only", help="comma-separated entry names")
+        q[name].add_argument("--seeds", help="comma-separated training seeds")
+    for name in ("run", "rl", "curves", "swap"):
+        _add_trust(q[name])
+    q["run"].add_argument("--address", help="a Ray cluster: run the entries at once, each as a Ray task")
+    q["run"].add_argument("--serial", action="store_true", help="each run with one worker in this process, without Ray")
+    q["run"].add_argument("--one-at-a-time", action="store_true", help="one run after another, each with its config's "
+                          "workers (default: as many runs at once as keep this machine's cores busy)")
+    q["run"].add_argument("--no-progress", action="store_true", help="no progress bars")
+    q["status"].add_argument("--costs-from", help="predict from the finished runs and RL results of this suite folder "
+                             "(default: --out's own)")
+    q["rl"].add_argument("--domains", help="comma-separated domains (default: every domain of the rl section)")
+    q["rl"].add_argument("--address", help="a Ray cluster (default: local Ray with every core)")
+    q["rl"].add_argument("--serial", action="store_true", help="one job after another in this process, without Ray")
+    q["report"].add_argument("--out", required=True, help="folder for report.md, report.html and the plots")
+    q["restore"].add_argument("archive", help="the archive of runs (e.g. docs/paper-report/runs)")
+    q["restore"].add_argument("--out", required=True, help="the suite's folder of run dirs; run dirs already there are kept")
 
     p = sub.add_parser("render", help="draw a task (PNG), an attempt (GIF), or a trained policy's attempts (GIF)")
     p.add_argument("--env", metavar="DOMAIN", help=f"the domain of the task to draw ({', '.join(domain_names())} or a "
@@ -558,8 +396,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run-dir", help="draw this run's trained policy: its successive attempts and the corrections between")
     _add_trust(p)
     p.add_argument("--attempts", type=int, default=5, help="with --run-dir: attempts to draw (corrections + 1)")
-    p.add_argument("--checkpoint", help="with --run-dir: checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
-    _add_foreign_checkpoint(p)
+    _add_checkpoint(p, "with --run-dir: ")
     p.add_argument("--task", required=True, type=int, help="task id (multiroom 0..3239, relocation 0..999)")
     p.add_argument("--out", required=True, help="output .png (start state) or .gif (attempt)")
     drawn = p.add_mutually_exclusive_group()
@@ -569,19 +406,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seed of the env's reset and, with --run-dir, of the policy's actions and the oracle (default 0)")
     p.set_defaults(func=cmd_render)
 
-    for name, func, text in (("teach", cmd_teach, "correct a trained policy yourself, in the terminal"),
-                             ("serve", cmd_serve, "correct a trained policy yourself, in a web page")):
+    for name, text in (("teach", "correct a trained policy yourself, in the terminal"),
+                       ("serve", "correct a trained policy yourself, in a web page")):
         p = sub.add_parser(name, help=text, epilog=(
             "after each attempt, type a correction, or one of the commands ':hint' (what the run's oracle would say), "
             "':undo' (take the last correction back), ':quit'" if name == "teach" else None))
         p.add_argument("--run-dir", required=True, help="a trained run (its checkpoints/latest.pt)")
         _add_trust(p)
-        p.add_argument("--checkpoint", help="checkpoint file (default: RUN_DIR/checkpoints/latest.pt)")
-        _add_foreign_checkpoint(p)
+        _add_checkpoint(p)
         p.add_argument("--split", default="test", help="split of the tasks drawn or matched (default test: held out)")
         p.add_argument("--max-corrections", type=int, default=10, help="corrections an episode may take")
-        p.add_argument("--out", help="folder of the teaching log (OUT/log/*.parquet)" + (" and GIFs (OUT/gifs)" if name == "teach"
-                       else "") + " (default RUN_DIR/teaching)")
+        gifs = " and GIFs (OUT/gifs)" if name == "teach" else ""
+        p.add_argument("--out", help=f"folder of the teaching log (OUT/log/*.parquet){gifs} (default RUN_DIR/teaching)")
         p.add_argument("--greedy", action="store_true", help="take the most likely action (default: sample, as eval)")
         if name == "teach":
             p.add_argument("--task", type=int, help="task id (default: one of --split drawn with --seed)")
@@ -591,7 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
         else:
             p.add_argument("--host", default="127.0.0.1", help="address to listen on (default loopback only)")
             p.add_argument("--port", type=int, default=8000, help="port to listen on (default 8000)")
-        p.set_defaults(func=func)
+        p.set_defaults(func=cmd_teach)
 
     p = sub.add_parser("export", help="write a run's buffer, or teaching logs, as a Minari dataset (each attempt an episode)")
     p.add_argument("run_dir", metavar="PATH", help="a run dir with a buffer, or a folder of teaching logs "
@@ -608,18 +444,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", help="a run dir, or a buffer root")
     p.add_argument("--tasks", action="store_true", help="add a per-task table")
     p.add_argument("--no-verify", action="store_true", help="compare file sizes only, not sha256 checksums")
-    p.set_defaults(func=cmd_inspect)
+    p.set_defaults(func=cmd_run_dir)
 
     p = sub.add_parser("verify", help="check every committed file against its manifest; name each bad one")
     p.add_argument("run_dir", help="a run dir, or a buffer root")
     p.add_argument("--quarantine", action="store_true",
                    help="move bad rounds under quarantine/ (nothing deleted) so that --resume can collect them again")
-    p.set_defaults(func=cmd_verify)
+    p.set_defaults(func=cmd_run_dir)
 
     p = sub.add_parser("clean", help="remove leftovers of dead writers (never committed data; never during a run)")
     p.add_argument("run_dir", help="a run dir, or a buffer root")
     p.add_argument("--dry-run", action="store_true", help="list what would be removed, remove nothing")
-    p.set_defaults(func=cmd_clean)
+    p.set_defaults(func=cmd_run_dir)
     return parser
 
 

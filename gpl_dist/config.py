@@ -167,6 +167,8 @@ class TrainingConfig:
     """Data-parallel learner processes, batch_size split among them (0: one per core of the driver's machine)."""
     engine: str = "processes"
     """Where the learners run: processes on the driver's machine, or ray-train (a Ray Train group anywhere on the cluster)."""
+    autocast: str = "none"
+    """Learner arithmetic: none (fp32) or bf16 (torch.autocast; on a CPU only with native bf16: avx512_bf16 or amx_bf16)."""
 
 
 @dataclass(frozen=True)
@@ -463,6 +465,8 @@ _VARIANTS = tuple(VARIANTS)
 _DEVICES = ("auto", "cpu", "cuda")
 #: where the learners run (``training.engine``): the driver's machine, or a Ray Train worker group
 ENGINES = ("processes", "ray-train")
+#: the learner's arithmetic (``training.autocast``): fp32, or bf16 under ``torch.autocast``
+AUTOCASTS = ("none", "bf16")
 
 
 def _one_of(key: str, value: str, choices: tuple[str, ...], scope: str = "") -> tuple[bool, str]:
@@ -483,6 +487,7 @@ def validate(cfg: RunConfig, source: str = "<config>") -> None:
         _one_of("model.variant", cfg.model.variant, _VARIANTS),
         _one_of("training.device", cfg.training.device, _DEVICES),
         _one_of("training.engine", cfg.training.engine, ENGINES),
+        _one_of("training.autocast", cfg.training.autocast, AUTOCASTS),
         _one_of("eval.phrasings", cfg.eval.phrasings, PHRASINGS),
         _one_of("model.encoder_activation", cfg.model.encoder_activation, ENCODER_ACTIVATIONS),
         (cfg.env.max_train_tasks >= 0, "env.max_train_tasks must be >= 0 (0 uses every task of the split)"),

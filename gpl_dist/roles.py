@@ -116,19 +116,44 @@ class DomainSpec:
             raise ValueError(f"domain '{self.name}' declares no paraphrases")
         return self.vocabulary.extended(self.paraphrases.words("train"))
 
-    def phrasings_of(self, kind: str | None = None) -> tuple[str, ...]:
+    def phrasings_of(self, kind: str | None = None, paraphrases: bool = False) -> tuple[str, ...]:
         """The sentences the oracle of correction ``kind`` says (``correction_phrasings(kind)``);
         every text kind's with ``kind`` None or when ``correction_phrasings`` takes no kind; ()
-        without ``correction_phrasings``."""
+        without ``correction_phrasings``. With ``paraphrases`` (a model trained with them,
+        ``model.paraphrases``), each sentence is followed by its training paraphrases
+        (``paraphrased``)."""
         f = self.correction_phrasings
         if f is None:
             return ()
+        said: tuple[str, ...] | None = None
         if kind is not None:
             try:
-                return tuple(f(kind))
+                said = tuple(f(kind))
             except TypeError:  # a domain's phrasings that take no kind: every kind's
                 pass
-        return tuple(f())
+        if said is None:
+            said = tuple(f())
+        return self.paraphrased(said, ("train",)) if paraphrases else said
+
+    def paraphrased(self, texts: Sequence[str], pools: Sequence[str] = ("train",)) -> tuple[str, ...]:
+        """``texts``, each followed by its paraphrases of ``pools`` (``language.PHRASINGS``): every
+        template of those pools of the first rule that matches it (whole, case-insensitive), as
+        ``Paraphrases.rewrite`` would say it; each sentence once (by its lower-case words, the first
+        spelling kept). ``texts`` alone when the domain declares no paraphrases."""
+        import re
+
+        out: dict[str, str] = {}
+        p = self.paraphrases
+        for text in texts:
+            said = [text]
+            for rule in p.rules if p is not None else ():
+                m = re.fullmatch(rule.pattern, text.strip(), re.IGNORECASE)
+                if m and p is not None:
+                    said += [rule.templates[i].format(**m.groupdict()) for pool in pools for i in p.pool(pool)]
+                    break
+            for sentence in said:
+                out.setdefault(" ".join(sentence.lower().split()), sentence)
+        return tuple(out.values())
 
     def instruction_of(self, task_id: int) -> str:
         """The instruction of ``task_id`` (its env's ``TaskEnv.instruction``)."""

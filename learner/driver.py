@@ -76,7 +76,7 @@ from learner.checkpoint import (
 from learner.health import EncoderHealth, format_health
 from learner.identity import RunIdentity, create_identity, read_identity, refuse_linked_folders, resolve_identity
 from learner.parallel import make_learner
-from learner.trainer import resolve_device
+from learner.trainer import autocast_context, resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
 from storage.fs import resolve
 from storage.lease import Lease
@@ -223,7 +223,9 @@ def preflight(cfg: RunConfig, address: str | None = None) -> tuple[int, ...]:
         raise ConfigError("training.engine=ray-train places learners on a Ray cluster: give its --address, or use "
                           "training.engine=processes on one machine (the same learners, bound to loopback)")
     if not address or cfg.training.device != "cuda":  # a cluster's GPUs are counted once joined
-        resolve_device(cfg.training.device)
+        device = resolve_device(cfg.training.device)
+        if cfg.training.engine == "processes":  # the learners run here: bf16 needs this CPU's native bf16
+            autocast_context(cfg.training, device)
     if address:
         from workers.ray_collector import check_reachable  # Ray is imported only where a run uses it
 

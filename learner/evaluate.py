@@ -5,10 +5,13 @@ oracle after each attempt, up to ``num_corrections``; a task stops once solved a
 completion forward. Actions are sampled from the policy by default, as during collection
 (``eval.greedy_actions: false``; the paper does not say): a greedy multi-room policy repeats the
 same action in the same state and gets stuck in loops (``docs/results.md``), and the policy was
-trained on the states its sampled rollouts reach. Seeds make the sampling reproducible. The expert is not queried. Writes
-``eval.json`` and ``eval.png`` to the run dir when the run's own ``eval`` settings and latest
-checkpoint are used; any other setting gets its own name (``eval-greedy.json``,
-``eval-c2-seeds0_1-first3.json``, ...), so a side evaluation never replaces the run's result.
+trained on the states its sampled rollouts reach. Seeds make the sampling reproducible. The expert is not queried.
+
+``evaluate_run`` writes the evaluation file (``EvalRecord``) into the run dir: ``eval.json`` when the
+run's own ``eval`` settings and latest checkpoint are used; any other setting gets its own name
+(``eval-greedy.json``, ``eval-c2-seeds0_1-first3.json``, ...), so a side evaluation never replaces
+the run's result. ``plot`` draws a record's curve beside the paper's (the CLI writes it as
+``<stem>.png``).
 """
 
 from __future__ import annotations
@@ -16,19 +19,18 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from gpl_dist.atomic import savefig_atomic, write_atomic
-from gpl_dist.config import MAX_CORRECTIONS, ConfigError, RunConfig, config_from_dict, load_config
+from gpl_dist.config import ConfigError, RunConfig, config_from_dict, load_config
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
-from gpl_dist.errors import CheckpointError, UsageError
-from gpl_dist.language import PHRASINGS
+from gpl_dist.errors import CheckpointError, RunDirError, UsageError
 from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import PolicyNetwork, build_model_from_config
 from gpl_dist.models.gpl import FULL_INFORMATION_VARIANTS
@@ -104,6 +106,176 @@ class EvalResult:
     num_tasks: int
     seconds: float
     effort: CorrectionEffort
+
+
+#: The evaluation file's schema (``EvalRecord.schema_version``).
+EVAL_SCHEMA = 2
+#: ``EvalRecord.instructions`` of an evaluation with the tasks' own instructions.
+OWN_INSTRUCTIONS = "own"
+#: What a version-1 file (one without ``schema_version``) may lack, and the value it was made with:
+#: files written before run ids lack ``run_id``, before the swap control ``instructions``, and the
+#: oldest ``success``, ``correction_effort``, ``max_tasks`` and ``phrasings``.
+_V1_DEFAULTS: dict[str, Any] = {"run_id": None, "instructions": OWN_INSTRUCTIONS, "success": [],
+                                "correction_effort": None, "max_tasks": 0, "phrasings": "canonical"}
+
+
+@dataclass(frozen=True)
+class EvalRecord:
+    """One evaluation, as its file (``<stem>.json``, ``report_stem``) holds it.
+
+    Attributes:
+        run_dir: the run dir evaluated, as given.
+        run_id: the run id of the checkpoint evaluated; None when not known.
+        domain, variant: the run's domain and model variant.
+        split: the split whose tasks were evaluated.
+        round: the DAgger round the checkpoint ends.
+        checkpoint: the checkpoint file as given, or ``latest``.
+        num_corrections: corrections given (K).
+        seeds: evaluation seeds.
+        max_tasks: the first N tasks of the split only (0: all).
+        greedy_actions: actions taken greedily (else sampled).
+        phrasings: how instructions and corrections were said (``language.PHRASINGS``).
+        trained_with_paraphrases: the run's ``model.paraphrases``.
+        instructions: ``own``, or ``swapped (<rule>)`` for the instruction-swap control.
+        num_tasks: tasks evaluated per seed.
+        completion, completion_std, success: ``EvalResult``'s, after 0..K corrections.
+        per_seed: each seed's completion curve.
+        seconds: wall time.
+        correction_effort: what the corrections cost; None where not recorded.
+        paper_completion: the paper's completion figures, as (corrections, value) pairs.
+        reduced_scale: what the run left out of the paper's setting (``reduced_scale``); None at full scale.
+        schema_version: the file's schema (``EVAL_SCHEMA``; a file read from an older one is upgraded
+            by ``from_json`` and carries the version it was read from).
+    """
+
+    run_dir: str
+    run_id: str | None
+    domain: str
+    variant: str
+    split: str
+    round: int
+    checkpoint: str
+    num_corrections: int
+    seeds: tuple[int, ...]
+    max_tasks: int
+    greedy_actions: bool
+    phrasings: str
+    trained_with_paraphrases: bool
+    instructions: str
+    num_tasks: int
+    completion: tuple[float, ...]
+    completion_std: tuple[float, ...]
+    success: tuple[float, ...]
+    per_seed: tuple[tuple[float, ...], ...]
+    seconds: float
+    correction_effort: CorrectionEffort | None
+    paper_completion: tuple[tuple[str, float], ...]
+    reduced_scale: str | None
+    schema_version: int = EVAL_SCHEMA
+
+    @property
+    def swapped(self) -> bool:
+        """The instruction-swap control: each task was told another task's instruction."""
+        return self.instructions != OWN_INSTRUCTIONS
+
+    @property
+    def with_paper(self) -> bool:
+        """The paper's figures compare with it: a full-scale run told its own instructions."""
+        return self.reduced_scale is None and not self.swapped
+
+    def to_json(self) -> str:
+        """The file's text: one key a line, in the field order, ending in a newline."""
+        payload = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        payload["correction_effort"] = None if self.correction_effort is None else dataclasses.asdict(self.correction_effort)
+        payload["paper_completion"] = dict(self.paper_completion)
+        return json.dumps(payload, indent=1) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str) -> EvalRecord:
+        """The record of a file's text, of any schema version (a version-1 file's missing keys take
+        ``_V1_DEFAULTS``); ``ValueError`` naming what is wrong when it is not an evaluation record."""
+        raw = json.loads(text)
+        if not isinstance(raw, dict):
+            raise ValueError("not a JSON object")
+        version = raw.get("schema_version", 1)
+        if version == 1:
+            raw = {**_V1_DEFAULTS, **raw, "schema_version": 1}
+        elif version != EVAL_SCHEMA:
+            raise ValueError(f"schema_version {str(version)[:20]}; this code reads versions 1 to {EVAL_SCHEMA}")
+        try:
+            effort = raw["correction_effort"]
+            return cls(
+                run_dir=_text(raw["run_dir"]), run_id=None if raw["run_id"] is None else _text(raw["run_id"]),
+                domain=_text(raw["domain"]), variant=_text(raw["variant"]), split=_text(raw["split"]),
+                round=_integer(raw["round"]), checkpoint=_text(raw["checkpoint"]),
+                num_corrections=_integer(raw["num_corrections"]), seeds=tuple(_integer(x) for x in _list(raw["seeds"])),
+                max_tasks=_integer(raw["max_tasks"]), greedy_actions=_flag(raw["greedy_actions"]),
+                phrasings=_text(raw["phrasings"]), trained_with_paraphrases=_flag(raw["trained_with_paraphrases"]),
+                instructions=_text(raw["instructions"]), num_tasks=_integer(raw["num_tasks"]),
+                completion=_numbers(raw["completion"]), completion_std=_numbers(raw["completion_std"]),
+                success=_numbers(raw["success"]), per_seed=tuple(_numbers(row) for row in _list(raw["per_seed"])),
+                seconds=_number(raw["seconds"]),
+                correction_effort=None if effort is None else _effort(_mapping(effort)),
+                paper_completion=tuple((_text(k), _number(v)) for k, v in _mapping(raw["paper_completion"]).items()),
+                reduced_scale=None if raw["reduced_scale"] is None else _text(raw["reduced_scale"]),
+                schema_version=version)
+        except KeyError as err:
+            raise ValueError(f"no {err.args[0]!r}") from None
+
+
+def read_eval(path: str | Path) -> EvalRecord:
+    """The ``EvalRecord`` of the file at ``path``; one that cannot be read or is not one fails in
+    one line naming it (``RunDirError``)."""
+    try:
+        return EvalRecord.from_json(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, ValueError, TypeError, RecursionError) as err:
+        raise RunDirError(f"{path}: not an evaluation record ({type(err).__name__}: {str(err)[:200]})") from None
+
+
+def _effort(raw: dict) -> CorrectionEffort:
+    optional = lambda key: None if raw[key] is None else _number(raw[key])  # noqa: E731
+    return CorrectionEffort(optional("corrections_to_solve"), _number(raw["unsolved_fraction"]),
+                            optional("words_per_solved_task"), _number(raw["completion_auc"]))
+
+
+def _list(value: Any) -> list:
+    if not isinstance(value, list):
+        raise ValueError(f"expected a list, got {str(value)[:40]}")
+    return value
+
+
+def _mapping(value: Any) -> dict:
+    if not isinstance(value, dict):
+        raise ValueError(f"expected a mapping, got {str(value)[:40]}")
+    return value
+
+
+def _number(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"expected a number, got {str(value)[:40]}")
+    return value
+
+
+def _numbers(value: Any) -> tuple[float, ...]:
+    return tuple(_number(x) for x in _list(value))
+
+
+def _integer(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"expected an integer, got {str(value)[:40]}")
+    return value
+
+
+def _flag(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise ValueError(f"expected true or false, got {str(value)[:40]}")
+    return value
+
+
+def _text(value: Any) -> str:
+    if not isinstance(value, str):
+        raise ValueError(f"expected a string, got {str(value)[:40]}")
+    return value
 
 
 def why_foreign(run_dir: str | Path, ckpt: Checkpoint, ckpt_file: str | Path) -> str | None:
@@ -257,17 +429,19 @@ def _success_by_attempt(attempts: list, max_attempts: int) -> np.ndarray:
     return np.mean(list(solved.values()), axis=0)
 
 
-def format_table(domain: str, result: EvalResult, with_paper: bool = True) -> str:
-    """The meta-test table: completion, its spread over seeds, success, and (``with_paper``) the paper's figure."""
+def format_table(domain: str, result: EvalResult | EvalRecord, with_paper: bool = True) -> str:
+    """The meta-test table: completion, its spread over seeds, success, and (``with_paper``) the
+    paper's figure; then the correction effort, where recorded."""
     paper = get_domain(domain).paper_completion if with_paper else {}
     lines = [f"{'corrections':>11} {'completion':>10} {'± std':>7} {'success':>8}" + (f" {'paper':>6}" if with_paper else "")]
     for k, (c, sd, s) in enumerate(zip(result.completion, result.completion_std, result.success)):
         p = (f" {paper[k]:>6.3f}" if k in paper else f" {'-':>6}") if with_paper else ""
         lines.append(f"{'c' + str(k):>11} {c:10.3f} {sd:7.3f} {s:8.3f}{p}")
-    e = result.effort
-    show = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
-    lines.append(f"correction effort: {show(e.corrections_to_solve)} corrections and {show(e.words_per_solved_task)} words "
-                 f"per solved task, {e.unsolved_fraction:.3f} unsolved, completion AUC {e.completion_auc:.3f}")
+    e = result.effort if isinstance(result, EvalResult) else result.correction_effort
+    if e is not None:
+        show = lambda x: "-" if x is None else f"{x:.2f}"  # noqa: E731
+        lines.append(f"correction effort: {show(e.corrections_to_solve)} corrections and {show(e.words_per_solved_task)} "
+                     f"words per solved task, {e.unsolved_fraction:.3f} unsolved, completion AUC {e.completion_auc:.3f}")
     return "\n".join(lines)
 
 
@@ -283,23 +457,25 @@ def reduced_scale(cfg: RunConfig) -> str | None:
             f"are in docs/results.md (configs/{cfg.env.domain}.yaml trains at the paper's scale).")
 
 
-def plot(domain: str, result: EvalResult, path: Path, title: str, with_paper: bool = True) -> None:
-    """Completion against corrections beside the paper's, as a PNG at ``path``."""
+def plot(record: EvalRecord, path: Path) -> None:
+    """A record's completion against corrections (± its spread over seeds), beside the paper's
+    where ``record.with_paper``, as a PNG at ``path`` (written whole or not at all)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ks = np.arange(len(result.completion))
+    ks = np.arange(len(record.completion))
     fig, ax = plt.subplots(figsize=(5, 3.5), dpi=120)
-    ax.errorbar(ks, result.completion, yerr=result.completion_std, marker="o", capsize=3, label="gpl-dist")
-    paper = get_domain(domain).paper_completion if with_paper else {}
+    ax.errorbar(ks, record.completion, yerr=record.completion_std, marker="o", capsize=3, label="gpl-dist")
+    paper = get_domain(record.domain).paper_completion if record.with_paper else {}
     pk = [int(k) for k in ks if int(k) in paper]
     if pk:
         ax.plot(pk, [paper[k] for k in pk], "s--", color="grey", label="paper (GPL)")
     ax.set_xlabel("corrections")
     ax.set_ylabel("mean completion (test tasks)")
     ax.set_ylim(0, 1.02)
-    ax.set_title(title)
+    told = ", told other tasks' instructions" if record.swapped else ""
+    ax.set_title(f"{record.domain} {record.variant}, {record.num_tasks} {record.split} tasks, round {record.round}{told}")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right")
     fig.tight_layout()
@@ -324,32 +500,17 @@ def report_stem(cfg: RunConfig, *, split: str, greedy: bool, num_corrections: in
 def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, seeds: tuple[int, ...] | None = None,
                  split: str | None = None, max_tasks: int | None = None, checkpoint: str | None = None,
                  greedy: bool | None = None, phrasings: str | None = None, foreign_checkpoint: bool = False,
-                 out_dir: str | Path | None = None, swap_instructions: bool = False) -> tuple[EvalResult, Path]:
-    """Evaluate a run's latest (or given) checkpoint; writes ``<stem>.json`` and ``<stem>.png`` (see
-    ``report_stem``) into the run dir (or ``out_dir``), atomically, and returns the result and the
-    JSON's path. A checkpoint of another run, domain or model is refused unless
-    ``foreign_checkpoint``; its evaluation then goes to ``out_dir`` (required, outside the run dir).
-    ``swap_instructions`` tells each task another task's instruction (``swapped_instructions``), on
-    the run's valid split (``splits.valid_split`` of its training split) unless ``split`` says
-    otherwise (a diagnostic: choose on valid)."""
+                 out_dir: str | Path | None = None, swap_instructions: bool = False) -> tuple[EvalRecord, Path]:
+    """Evaluate a run's latest (or given) checkpoint; writes its ``EvalRecord`` as ``<stem>.json``
+    (see ``report_stem``) into the run dir (or ``out_dir``, made if missing), atomically, and
+    returns the record and the file's path. Each setting left None is the run's own ``eval``
+    setting. A checkpoint of another run, domain or model is refused (``CheckpointError``) unless
+    ``foreign_checkpoint``. ``swap_instructions`` tells each task another task's instruction
+    (``swapped_instructions``), on the run's valid split (``splits.valid_split`` of its training
+    split) unless ``split`` says otherwise (a diagnostic: choose on valid). The arguments are taken
+    as given (the CLI checks them: ``gpl_dist.cli``)."""
     run_dir = Path(run_dir)
     target = Path(out_dir) if out_dir is not None else run_dir
-    if foreign_checkpoint:
-        if out_dir is None:
-            raise UsageError(f"--foreign-checkpoint writes nothing into {run_dir}: give --out DIR for the evaluation's files")
-        if target.resolve().is_relative_to(run_dir.resolve()):
-            raise UsageError(f"--out {target} is inside {run_dir}: a foreign checkpoint's evaluation is written elsewhere")
-    for name, value in (("corrections", num_corrections), ("max_tasks", max_tasks)):
-        if value is not None and value < 0:
-            raise UsageError(f"{name} must be >= 0, got {value}")
-    if num_corrections is not None and num_corrections > MAX_CORRECTIONS:
-        raise UsageError(f"corrections must be at most {MAX_CORRECTIONS}, got {num_corrections}")
-    if seeds is not None and not seeds:
-        raise UsageError("seeds must name at least one seed")
-    if out_dir is not None:
-        target.mkdir(parents=True, exist_ok=True)
-    if target.is_dir() and not os.access(target, os.W_OK):
-        raise UsageError(f"cannot write the report into {target} (no write permission)")
     cfg, model, ckpt = _load_policy(run_dir, checkpoint, foreign_checkpoint)
     round_index, ckpt_run = ckpt.round_index, ckpt.run_id
     if ckpt_run is None and not foreign_checkpoint:  # saved before run ids: the run's own (checked above)
@@ -365,8 +526,6 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     seeds = tuple(seeds or cfg.eval.seeds)
     max_tasks = cfg.eval.max_tasks if max_tasks is None else max_tasks
     phrasings = phrasings or cfg.eval.phrasings
-    if phrasings not in PHRASINGS:
-        raise UsageError(f"phrasings must be one of {', '.join(PHRASINGS)}, got {phrasings!r}")
     if phrasings != "canonical" and get_domain(cfg.env.domain).paraphrases is None:
         raise UsageError(f"{cfg.env.domain} declares no paraphrases: only canonical phrasings can be evaluated")
     if phrasings != "canonical" and not cfg.model.paraphrases:
@@ -378,22 +537,17 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
                              swap_instructions=swap_instructions)
     stem = report_stem(cfg, split=split, greedy=greedy, num_corrections=k, seeds=seeds, max_tasks=max_tasks,
                        checkpoint=checkpoint, phrasings=phrasings, swap_instructions=swap_instructions)
-    payload = {"run_dir": str(run_dir), "run_id": ckpt_run, "domain": cfg.env.domain, "variant": cfg.model.variant,
-               "split": split,
-               "round": round_index, "checkpoint": str(checkpoint or "latest"), "num_corrections": k,
-               "seeds": list(seeds), "max_tasks": max_tasks,
-               "greedy_actions": greedy, "phrasings": phrasings, "trained_with_paraphrases": cfg.model.paraphrases,
-               "instructions": f"swapped ({SWAP_RULE})" if swap_instructions else "own",
-               "num_tasks": result.num_tasks,
-               "completion": result.completion, "completion_std": result.completion_std,
-               "success": result.success, "per_seed": result.per_seed, "seconds": result.seconds,
-               "correction_effort": dataclasses.asdict(result.effort),
-               "paper_completion": {str(k2): v for k2, v in get_domain(cfg.env.domain).paper_completion.items()},
-               "reduced_scale": reduced_scale(cfg)}
-    path = target / f"{stem}.json"
-    told = ", told other tasks' instructions" if swap_instructions else ""
-    plot(cfg.env.domain, result, path.with_suffix(".png"),  # written whole or not at all (savefig_atomic)
-         f"{cfg.env.domain} {cfg.model.variant}, {result.num_tasks} {split} tasks, round {round_index}{told}",
-         with_paper=payload["reduced_scale"] is None and not swap_instructions)
-    write_atomic(path, (json.dumps(payload, indent=1) + "\n").encode())
-    return result, path
+    record = EvalRecord(
+        run_dir=str(run_dir), run_id=ckpt_run, domain=cfg.env.domain, variant=cfg.model.variant, split=split,
+        round=round_index, checkpoint=str(checkpoint or "latest"), num_corrections=k, seeds=seeds,
+        max_tasks=max_tasks, greedy_actions=greedy, phrasings=phrasings,
+        trained_with_paraphrases=cfg.model.paraphrases,
+        instructions=f"swapped ({SWAP_RULE})" if swap_instructions else OWN_INSTRUCTIONS,
+        num_tasks=result.num_tasks, completion=tuple(result.completion), completion_std=tuple(result.completion_std),
+        success=tuple(result.success), per_seed=tuple(tuple(c) for c in result.per_seed), seconds=result.seconds,
+        correction_effort=result.effort,
+        paper_completion=tuple((str(k2), v) for k2, v in get_domain(cfg.env.domain).paper_completion.items()),
+        reduced_scale=reduced_scale(cfg))
+    target.mkdir(parents=True, exist_ok=True)
+    path = write_atomic(target / f"{stem}.json", record.to_json())
+    return record, path

@@ -2,10 +2,9 @@
 
 A ReLU unit that is never positive gets no gradient; only a later round's different states can
 bring it back. When the narrow output of an encoder dies whole, the policy stops seeing what the
-encoder reads (multi-room suite seed 3 of the former network, ReLU encodings without BatchNorm:
-the 4-unit correction encoding and 31 of 32 pair units died in round 0, and the run never used a
-correction); when most hidden units of the trajectory path die, it reads the earlier attempts
-through a few units (seed 1 of that network, the weak seed). The learner counts them after each round
+encoder reads (a run whose correction encoding dies whole never uses a correction); when most
+hidden units of the trajectory path die, it reads the earlier attempts through a few units
+(``docs/history.md`` has the runs where both happened). The learner counts them after each round
 on a probe of the round's states; the driver logs the counts and warns. A unit that is positive but
 the same for every input counts as alive here, though it carries nothing either.
 

@@ -1,7 +1,7 @@
 """The project's one PPO: stable-baselines3's (SB3), with its settings (``PPOSettings``) and one
 subclass of it (``ppo_class``), built by ``make_sb3_ppo``.
 
-Two users: the RL baselines of the sample-complexity figure (``learner.rl``: the defaults, the
+Two users: the RL baselines of the sample-complexity figure (``gpl_dist.app.suite.rl.per_task``: the defaults, the
 authors' expert PPO) and the learned relocation expert's PPO stage
 (``learner.relocation_expert_training``: ``EXPERT_PPO``). Beyond SB3's own PPO the subclass does two
 things, each off unless asked: its updates can be switched off while it keeps sampling
@@ -58,7 +58,7 @@ class PPOSettings:
     value_layers: int = 1
     """Hidden layers of the value head (each ``value_hidden`` wide)."""
     stop_when_solved: bool = True
-    """RL jobs (``learner.rl``): stop updating once every copy solved the task in one update's episodes,
+    """RL jobs (``gpl_dist.app.suite.rl.per_task``): stop updating once every copy solved the task in one update's episodes,
     as the authors' expert PPO stopped; later trajectories are sampled from that policy. (Updating on:
     once all copies succeed the advantages are near-equal, normalising them amplifies noise, and the
     policy can collapse: measured on multi-room task 69, 0.99 completion to 0.0 within 100 trajectories.)"""

@@ -3,10 +3,11 @@
 Two steps, run by ``scripts/train_relocation_expert.py`` (``dagger``, then ``ppo``):
 
 1. ``privileged_dagger``: DAgger on the scripted expert's soft labels with the exact target given:
-   the policy (``build_policy``: an input BatchNorm and 3 hidden ReLU layers over the observation
-   and ``privileged_inputs``) is rolled out with sampled actions on training tasks, every state is
-   labelled with the expert's distribution, all rounds' states are aggregated, and it is trained
-   for some epochs with cross-entropy.
+   the policy (``build_policy``: an input BatchNorm and 3 hidden ReLU layers over
+   ``privileged_inputs``: the observation, the exact target and the goal block) is rolled out
+   with sampled actions on training tasks, every state is labelled with the expert's
+   distribution, all rounds' states are aggregated, and it is trained for some epochs with
+   cross-entropy.
 2. ``ppo_finetune``: stable-baselines3's PPO with the paper's dense reward over the 750 training
    tasks, from step 1's weights: value layers of their own (and their own learning rate) behind
    the policy's frozen input normalisation, clipped policy steps, an early stop on the KL
@@ -36,21 +37,25 @@ from torch import nn
 from gpl_dist.envs.relocation import RelocationEnv, make_env
 from gpl_dist.envs.relocation_core import EPISODE_STEPS, SUCCESS_RADIUS, make_task
 from gpl_dist.experts.relocation import RelocationExpert
-from gpl_dist.experts.relocation_learned import NUM_LAYERS
+from gpl_dist.experts.relocation_learned import INPUT_DIM, NUM_LAYERS, input_rows
 from gpl_dist.splits import split_tasks
 from learner.ppo import PPOSettings, make_sb3_ppo
 
 #: Reset seed of monitored task k is ``MONITOR_SEED + k``, for the expert and the policy alike. The
 #: printed completions are on the valid split: whatever is chosen by watching them never reads test.
 MONITOR_SEED = 99_999
-#: Inputs of the policy: the 28-d observation, the target (x, y) and the goal block's one-hot.
-INPUT_DIM = 33
 
 
-def privileged_inputs(task_ids) -> np.ndarray:
-    """``(N, 5)`` float32: exact target xy and the goal block one-hot of each task."""
+def privileged_inputs(observations: np.ndarray, targets: np.ndarray, blocks: list[int]) -> np.ndarray:
+    """``(N, INPUT_DIM)`` float32: the observations ``(N, 28)`` with the exact target xy and the goal
+    block one-hot of each task (``relocation_learned.input_rows``, the packaged expert's input)."""
+    return input_rows(observations, targets, blocks, np.float32)
+
+
+def task_targets(task_ids) -> tuple[np.ndarray, list[int]]:
+    """The target xy ``(N, 2)`` and goal block of each task."""
     tasks = [make_task(int(t)) for t in task_ids]
-    return np.array([[*t.target, *np.eye(3)[t.block]] for t in tasks], dtype=np.float32)
+    return np.array([t.target for t in tasks]), [t.block for t in tasks]
 
 
 def build_policy(in_dim: int = INPUT_DIM, width: int = 256) -> nn.Sequential:
@@ -68,12 +73,12 @@ def privileged_rollout(policy: nn.Module | None, task_ids, seed: int, label: boo
     envs = [make_env(t) for t in task_ids]
     expert = RelocationExpert()
     obs = np.stack([e.reset(seed=seed + k)[0] for k, e in enumerate(envs)]).astype(np.float32)
-    priv = privileged_inputs(task_ids)
+    targets, blocks = task_targets(task_ids)
     gen = torch.Generator().manual_seed(seed)
     rng = np.random.default_rng(seed)
     xs, ys = [], []
     for _ in range(EPISODE_STEPS):
-        x = np.concatenate([obs, priv], 1)
+        x = privileged_inputs(obs, targets, blocks)
         if label or policy is None:
             labels = [expert.label(e) for e in envs]
             probs = np.stack([lab[1] for lab in labels])
@@ -182,8 +187,8 @@ def _fit(policy: nn.Module, opt: torch.optim.Optimizer, xa: torch.Tensor, ya: to
 
 class PrivilegedTasks(gymnasium.Env):
     """Relocation's training tasks for step 2: each reset draws a task and a reset seed from its
-    own generator; observations are the env's 28 values and the task's ``privileged_inputs``
-    (float32 ``(33,)``); rewards are the paper's dense reward divided by ``reward_scale`` (the
+    own generator; observations are ``privileged_inputs`` (float32 ``(33,)``: the env's 28 values,
+    the task's target and goal block); rewards are the paper's dense reward divided by ``reward_scale`` (the
     value function then learns returns of about -15 rather than -300; PPO's normalised
     advantages make the policy's steps the same either way)."""
 
@@ -195,7 +200,7 @@ class PrivilegedTasks(gymnasium.Env):
         self.observation_space = gymnasium.spaces.Box(-np.inf, np.inf, (INPUT_DIM,), np.float32)
         self.action_space = gymnasium.spaces.Discrete(4)
         self.env: RelocationEnv | None = None
-        self.extra = np.zeros(INPUT_DIM - 28, np.float32)
+        self.target, self.block = np.zeros(2), 0
         #: the generator's state before the latest reset's draws: a checkpoint taken between
         #: episodes restores it, and the resumed run's first reset redraws the same task and seed
         self.rng_before_reset: Mapping[str, Any] = self.rng.bit_generator.state
@@ -207,15 +212,18 @@ class PrivilegedTasks(gymnasium.Env):
         # a new env per episode (about 4 ms): keeping one per task drawn grew to every training task
         # in each of the 100 envs (24 GB by iteration 480); reset with a seed fixes the whole state
         self.env = make_env(task)
-        self.extra = privileged_inputs([task])[0]
+        targets, blocks = task_targets([task])
+        self.target, self.block = targets[0], blocks[0]
         obs, info = self.env.reset(seed=int(self.rng.integers(2**31)))
-        return np.concatenate([obs, self.extra]).astype(np.float32), info
+        return self._inputs(obs), info
+
+    def _inputs(self, obs: np.ndarray) -> np.ndarray:
+        return privileged_inputs(obs[None], self.target[None], [self.block])[0]
 
     def step(self, action):
         assert self.env is not None, "reset first"
         obs, reward, terminated, truncated, info = self.env.step(int(action))
-        return (np.concatenate([obs, self.extra]).astype(np.float32), reward / self.reward_scale, terminated, truncated,
-                info)
+        return self._inputs(obs), reward / self.reward_scale, terminated, truncated, info
 
 
 #: Step 2's PPO, as SB3 runs it: 100 envs, one episode of each per iteration, the policy's Adam at

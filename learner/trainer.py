@@ -29,6 +29,7 @@ process (the driver's, for rank 0).
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import os
 import time
@@ -130,6 +131,22 @@ def epoch_order(attempt_rows: torch.Tensor, chunk: int, generator: torch.Generat
     return order[order >= 0]
 
 
+def autocast_context(cfg: TrainingConfig, device: torch.device) -> Callable[[], contextlib.AbstractContextManager]:
+    """A factory of the context each forward of the learner runs in (``training.autocast``):
+    ``torch.autocast`` to bf16, or nothing. bf16 on a CPU needs native bf16 dot products
+    (``learner.cpu.native_bf16``); elsewhere it would be emulated in fp32 and only add conversions,
+    so ``ConfigError`` says so before anything trains. Autocast is per thread: each thread that
+    runs a forward enters its own."""
+    if cfg.autocast == "none":
+        return contextlib.nullcontext
+    from learner.cpu import BF16_FLAGS, native_bf16
+
+    if device.type == "cpu" and not native_bf16():
+        raise ConfigError(f"training.autocast={cfg.autocast} needs a CPU with native bf16 ({' or '.join(BF16_FLAGS)}); "
+                          "this one has neither: use training.autocast=none")
+    return lambda: torch.autocast(device.type, dtype=torch.bfloat16)
+
+
 def available_cpus() -> int:
     """CPU cores this process may run on (its affinity mask: a container's or ``taskset``'s share)."""
     try:
@@ -176,6 +193,7 @@ class Learner:
         keep_freed_memory()  # the step's MB-sized temporaries would page-fault afresh every step
         self.device = resolve_device(cfg.device)
         torch.set_num_threads(threads_per_learner(cfg))
+        self._autocast = autocast_context(cfg, self.device)
         self.model = model.to(self.device)
         self.flat_parameters, self.flat_grads = flatten_parameters(self.model)
         # one fused Adam kernel over one tensor: the per-tensor bookkeeping of a 45-tensor step
@@ -405,12 +423,14 @@ class Learner:
         parameter, so every op and sum is the one-thread step's: bitwise the same result."""
         model: Any = self.model  # a GPLPolicy or MIVOAPolicy (gpl_dist.roles.Policy)
         assert self._branches is not None
-        z_future = self._branches.submit(model.encode_conditioning, cond)
-        states = model.encode_states(obs, previous)
+        z_future = self._branches.submit(self._encode_conditioning, cond)
+        with self._autocast():
+            states = model.encode_states(obs, previous)
         z = z_future.result()
         z_in, states_in = z.detach().requires_grad_(z.requires_grad), states.detach().requires_grad_(states.requires_grad)
-        logits = model.head_logits(states_in, z_in[rows], previous)
-        loss = nn.functional.cross_entropy(logits, targets)
+        with self._autocast():
+            logits = model.head_logits(states_in, z_in[rows], previous)
+            loss = nn.functional.cross_entropy(logits, targets)
         self.flat_grads.zero_()
         # the gradients at the cut as the head's backward makes them (a .grad would be re-laid out
         # as a contiguous copy, and a BatchNorm's backward sums a strided gradient in another order)
@@ -427,14 +447,20 @@ class Learner:
             back.result()
         return logits, loss
 
+    def _encode_conditioning(self, cond: Conditioning) -> torch.Tensor:
+        """``encode_conditioning`` under the learner's autocast (entered on the calling thread)."""
+        with self._autocast():
+            return self.model.encode_conditioning(cond)  # type: ignore[operator]
+
     def _train_on(self, obs, labels, cond, rows, targets, previous=None,
                   share: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
         """One step on a batch; ``share`` is this learner's fraction of a group's global batch.
         Returns the batch's mean loss and its number of correct argmax actions, as 0-d tensors on
         the learner's device."""
         if self._branches is None:
-            logits = self.model(obs, cond, rows, previous)
-            loss = nn.functional.cross_entropy(logits, targets)
+            with self._autocast():
+                logits = self.model(obs, cond, rows, previous)
+                loss = nn.functional.cross_entropy(logits, targets)
             self.flat_grads.zero_()  # the parameters' grads are views of it: backward adds in place
             (loss * share if share != 1.0 else loss).backward()
         else:

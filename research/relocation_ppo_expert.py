@@ -26,10 +26,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from gpl_dist.app.suite.rl.per_task import CompletionRecorder
 from gpl_dist.envs.relocation_core import EPISODE_STEPS, NUM_TASKS
 from gpl_dist.splits import split_tasks
 from learner.ppo import PPOSettings, make_sb3_ppo
-from learner.rl import CompletionRecorder
 
 NUM_COPIES = 20
 

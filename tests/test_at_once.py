@@ -76,8 +76,8 @@ def test_seeds_at_once_are_bit_for_bit_the_runs_one_after_another(tmp_path, ray_
 
 @pytest.mark.ray
 def test_a_suite_runs_its_seeds_at_once_with_the_files_of_one_after_another(tmp_path, ray_cluster):
-    from gpl_dist.app.suite.runner import run_suite
-    from gpl_dist.app.suite.runs import run_state
+    from gpl_dist.app.suite.every_run import run_suite
+    from gpl_dist.app.suite.one_run import run_state
     from gpl_dist.app.suite.spec import load_suite, plan
 
     tiny = {"env.max_train_tasks": 4, "collection.num_corrections": 2, "training.num_epochs_per_round": 1,

@@ -1,6 +1,5 @@
 """The gpl-dist command line, run as a user would (in-process through main(), and as a console script)."""
 
-import json
 import subprocess
 import sys
 
@@ -9,6 +8,7 @@ from PIL import Image
 
 from gpl_dist.cli import main
 from gpl_dist.domains import get_domain
+from learner.evaluate import EVAL_SCHEMA, EvalRecord, read_eval
 
 
 def test_render_png_and_gif(tmp_path, capsys):
@@ -91,13 +91,14 @@ def test_train_eval_inspect_clean(tmp_path, capsys):
     # settings other than the run's own eval section get their own report, named after the difference
     report = run / "eval-c2-first3.json"  # seeds 0,1 are the config's own
     assert f"wrote {report}" in out
-    result = json.loads(report.read_text())
-    assert result["num_tasks"] == 3 and len(result["completion"]) == 3 and len(result["per_seed"]) == 2
-    assert result["split"] == "test" and result["greedy_actions"] is False and result["max_tasks"] == 3
+    result = read_eval(report)
+    assert result.num_tasks == 3 and len(result.completion) == 3 and len(result.per_seed) == 2
+    assert result.split == "test" and result.greedy_actions is False and result.max_tasks == 3
+    assert result.schema_version == EVAL_SCHEMA and EvalRecord.from_json(report.read_text()) == result
     assert main(["eval", "--run-dir", str(run), "--max-tasks", "2", "--seeds", "0", "--corrections", "1", "--greedy"]) == 0
     greedy = run / "eval-greedy-c1-seeds0-first2.json"
-    assert json.loads(greedy.read_text())["greedy_actions"] is True
-    assert json.loads(report.read_text()) == result  # the first report is untouched
+    assert read_eval(greedy).greedy_actions is True
+    assert read_eval(report) == result  # the first report is untouched
     assert greedy.with_suffix(".png").stat().st_size > 1000
     assert not (run / "eval.json").exists()
     from gpl_dist.config import RunConfig

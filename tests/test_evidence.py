@@ -15,6 +15,7 @@ from gpl_dist.app.suite.archive import check_archive
 from gpl_dist.app.suite.evidence import CHECKSUMS, EvidenceError
 from gpl_dist.cli import main
 from gpl_dist.errors import RunDirError
+from learner.evaluate import read_eval
 
 REPO = Path(__file__).resolve().parents[1]
 ARCHIVE = REPO / "docs" / "paper-report" / "runs"
@@ -50,7 +51,7 @@ def test_an_edited_completion_is_refused_by_report_and_restore(archive, tmp_path
     """The issue's probe: completion[5] of multiroom-gpl seed 0 set to 0.999 (the headline moved
     from 0.912 to 0.929)."""
     bad = archive / "multiroom-gpl" / "seed0" / "eval.json"
-    per_seed = json.loads(bad.read_text())["per_seed"]
+    per_seed = read_eval(bad).per_seed
     mean = sum(row[5] for row in per_seed) / len(per_seed)
     _edit(bad, lambda d: d["completion"].__setitem__(5, 0.999))
     capsys.readouterr()
@@ -121,7 +122,7 @@ def test_an_archive_from_before_checksums_restores_with_a_note(archive, tmp_path
 
 
 def test_a_second_suite_run_is_refused_while_the_first_evaluates(archive, tmp_path):
-    from gpl_dist.app.suite.runs import execute, read_record, run_state
+    from gpl_dist.app.suite.one_run import execute, read_record, run_state
     from gpl_dist.app.suite.spec import load_suite, plan
     from storage.lease import Lease
 

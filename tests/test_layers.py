@@ -27,6 +27,6 @@ def test_ray_is_allowed_only_in_the_named_wiring_modules_and_those_modules_exist
     ray = _contracts()["Ray only in the wiring: the Ray collector, the remote learners, Ray Train, the suite's two Ray runners"]
     wiring = {rule.split(" -> ")[0] for rule in ray["ignore_imports"]}
     assert wiring == {"workers.ray_collector", "learner.remote", "learner.ray_train", "gpl_dist.app.suite.cluster",
-                      "gpl_dist.app.suite.rl_cluster"}
+                      "gpl_dist.app.suite.rl.cluster"}
     for module in wiring:
         assert (ROOT / (module.replace(".", "/") + ".py")).is_file()

@@ -80,6 +80,28 @@ def test_policy_inputs_are_the_observation_target_and_block():
     assert tuple(x[28:30]) == env.task.target and x[30 + env.task.block] == 1.0 and x[30:33].sum() == 1.0
 
 
+def test_training_reads_the_packaged_experts_inputs_in_float32():
+    """One builder of the 33 values: the training's inputs (from the env's float32 observation)
+    are the packaged expert's (from the simulator's float64 state) cast to float32, bit for bit,
+    in a batch and one episode at a time (step 2's env)."""
+    from gpl_dist.experts.relocation_learned import policy_inputs_batch
+    from learner.relocation_expert_training import PrivilegedTasks, privileged_inputs, task_targets
+
+    tasks = split_tasks("relocation", "train")[:5]
+    envs = [make_env(t) for t in tasks]
+    obs = np.stack([e.reset(seed=k)[0] for k, e in enumerate(envs)])
+    for a in (2, 2, 0, 1, 3):
+        obs = np.stack([e.step(a)[0] for e in envs])
+    targets, blocks = task_targets(tasks)
+    x = privileged_inputs(obs.astype(np.float32), targets, blocks)
+    assert x.dtype == np.float32 and x.tobytes() == policy_inputs_batch(envs).astype(np.float32).tobytes()
+    one = PrivilegedTasks(tasks, seed=0)
+    first, _ = one.reset()
+    assert first.tobytes() == policy_inputs(one.env).astype(np.float32).tobytes()
+    stepped = one.step(1)[0]
+    assert stepped.tobytes() == policy_inputs(one.env).astype(np.float32).tobytes()
+
+
 def test_learned_expert_solves_tasks_on_its_own():
     """Its own (argmax) actions on the first 3 test tasks: at least 0.8 mean completion."""
     expert = LearnedRelocationExpert()

@@ -9,16 +9,9 @@ import pytest
 import torch
 from test_suite import entry, write_suite
 
-from gpl_dist.app.suite.rl_jobs import load_results, run_rl_plan
-from gpl_dist.app.suite.rl_plan import rl_jobs
-from gpl_dist.app.suite.runner import run_suite
-from gpl_dist.app.suite.spec import load_suite
-from gpl_dist.cli import main
-from gpl_dist.config import ConfigError
-from gpl_dist.models.build import state_dict_to_numpy
-from learner.evaluate import load_trained_policy
-from learner.ppo import PPOSettings
-from learner.rl import (
+from gpl_dist.app.suite.every_run import run_suite
+from gpl_dist.app.suite.rl.jobs import load_results, run_rl_plan
+from gpl_dist.app.suite.rl.per_task import (
     CompletionRecorder,
     RLJob,
     _instruction_only,
@@ -29,6 +22,13 @@ from learner.rl import (
     run_rl_job,
     smoothed,
 )
+from gpl_dist.app.suite.rl.plan import rl_jobs
+from gpl_dist.app.suite.spec import load_suite
+from gpl_dist.cli import main
+from gpl_dist.config import ConfigError
+from gpl_dist.models.build import state_dict_to_numpy
+from learner.evaluate import load_trained_policy
+from learner.ppo import PPOSettings
 
 SMALL = PPOSettings(n_envs=2, batch_size=64, n_epochs=1)  # one episode of each copy per update
 
@@ -111,9 +111,9 @@ def test_relocation_finetuning_starts_from_exactly_the_pretrained_policy():
     non-trivial BatchNorm statistics, give SB3's policy the network's own action distribution."""
     import dataclasses
 
+    from gpl_dist.app.suite.rl.per_task import task_network
     from gpl_dist.config import load_config
     from gpl_dist.domains import get_domain
-    from learner.rl import task_network
 
     model_cfg = dataclasses.replace(load_config("configs/relocation.yaml").model, variant="instruction_only")
     network = task_network(get_domain("relocation"), None, seed=5, model=model_cfg)
@@ -240,8 +240,8 @@ def test_a_result_written_before_the_ppo_settings_gained_fields_stays_current(tm
     ``target_kl``, ``max_grad_norm`` and ``value_layers`` ran with their defaults, and counts as such."""
     import dataclasses
 
-    from gpl_dist.app.suite.rl_jobs import is_current, write_result
-    from learner.rl import RLCurve
+    from gpl_dist.app.suite.rl.jobs import is_current, write_result
+    from gpl_dist.app.suite.rl.per_task import RLCurve
 
     settings = PPOSettings(n_envs=2)
     later = ("value_learning_rate", "target_kl", "max_grad_norm", "value_layers")
@@ -260,9 +260,9 @@ def test_curves_are_read_at_log_spaced_points():
 
 
 def test_the_table_reads_every_named_column_of_a_long_curve(tmp_path):
-    from gpl_dist.app.suite.rl_jobs import write_result
-    from gpl_dist.app.suite.rl_report import sample_complexity_section
-    from learner.rl import RLCurve
+    from gpl_dist.app.suite.rl.jobs import write_result
+    from gpl_dist.app.suite.rl.per_task import RLCurve
+    from gpl_dist.app.suite.rl.report import sample_complexity_section
 
     ramp = tuple(min(1.0, i / 1000) for i in range(2000))  # completion rises to 1 by trajectory 1000
     for t in (1, 2):
@@ -278,10 +278,10 @@ def test_the_report_reads_only_the_results_of_the_suites_rl_plan(tmp_path):
     """Results of an older task list, budget or PPO settings stay on disk but out of the medians."""
     import dataclasses
 
-    from gpl_dist.app.suite.rl_jobs import plan_of_copy, write_result
-    from gpl_dist.app.suite.rl_plan import parse_rl_plan
-    from gpl_dist.app.suite.rl_report import sample_complexity_section
-    from learner.rl import RLCurve
+    from gpl_dist.app.suite.rl.jobs import plan_of_copy, write_result
+    from gpl_dist.app.suite.rl.per_task import RLCurve
+    from gpl_dist.app.suite.rl.plan import parse_rl_plan
+    from gpl_dist.app.suite.rl.report import sample_complexity_section
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ())
     settings = dataclasses.asdict(plan.settings("multiroom"))
@@ -315,9 +315,9 @@ def test_a_changed_budget_or_task_list_makes_a_written_result_stale(tmp_path):
     are compared with the plan, so changing either runs the job again instead of counting it done."""
     import dataclasses
 
-    from gpl_dist.app.suite.rl_jobs import attempts_current, is_current, write_result
-    from gpl_dist.app.suite.rl_plan import AttemptsJob, parse_rl_plan
-    from learner.rl import RLCurve
+    from gpl_dist.app.suite.rl.jobs import attempts_current, is_current, write_result
+    from gpl_dist.app.suite.rl.per_task import RLCurve
+    from gpl_dist.app.suite.rl.plan import AttemptsJob, parse_rl_plan
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2]}, "seeds": [0], "trajectories": 50}, ("gpl",))
     settings = plan.settings("multiroom")
@@ -336,10 +336,10 @@ def test_rl_reaches_gpl_against_gpls_median_on_the_same_tasks_and_missing_jobs_a
     """With RL on 2 of 3 tasks, the bar is GPL's median on those 2 (0.30), not on all 3 (0.40)."""
     import dataclasses
 
-    from gpl_dist.app.suite.rl_jobs import write_result
-    from gpl_dist.app.suite.rl_plan import parse_rl_plan
-    from gpl_dist.app.suite.rl_report import sample_complexity_section
-    from learner.rl import RLCurve
+    from gpl_dist.app.suite.rl.jobs import write_result
+    from gpl_dist.app.suite.rl.per_task import RLCurve
+    from gpl_dist.app.suite.rl.plan import parse_rl_plan
+    from gpl_dist.app.suite.rl.report import sample_complexity_section
 
     plan = parse_rl_plan("t", {"tasks": {"multiroom": [1, 2, 3]}, "seeds": [0], "trajectories": 40,
                                "attempts_from": {"multiroom": ["gpl"]}}, ("gpl",))

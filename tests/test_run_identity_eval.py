@@ -16,6 +16,7 @@ import torch
 
 from gpl_dist.cli import main
 from gpl_dist.errors import CheckpointError
+from learner.evaluate import read_eval
 
 
 def _train(run: Path) -> Path:
@@ -78,7 +79,7 @@ def test_a_run_without_run_json_refuses_a_twins_checkpoint_by_its_buffer_marker(
     # its own checkpoint still evaluates, into the run
     shutil.copyfile(a / "checkpoints" / "latest.pt", run / "checkpoints" / "latest.pt")
     assert main(["eval", "--run-dir", str(run), *_EVAL]) == 0
-    assert json.loads((run / "eval-c0-seeds0-first1.json").read_text())["run_id"] == _id(a)
+    assert read_eval(run / "eval-c0-seeds0-first1.json").run_id == _id(a)
 
 
 def test_a_restored_run_without_run_json_or_buffer_is_checked_by_the_ids_its_files_record(twins, tmp_path, capsys):

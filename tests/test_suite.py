@@ -3,6 +3,7 @@ report the paper's tables from the eval files, and run entries as Ray tasks on a
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -14,12 +15,13 @@ from pathlib import Path
 
 import pytest
 
+from gpl_dist.app.suite.every_run import run_suite
+from gpl_dist.app.suite.one_run import run_state
 from gpl_dist.app.suite.report import collect_results
-from gpl_dist.app.suite.runner import run_suite
-from gpl_dist.app.suite.runs import run_state
 from gpl_dist.app.suite.spec import load_suite, plan
 from gpl_dist.cli import main
 from gpl_dist.config import ConfigError
+from learner.evaluate import read_eval
 from tests.test_safety import _one_line_error
 
 REPO = Path(__file__).resolve().parent.parent
@@ -80,8 +82,8 @@ def test_a_suite_runs_every_entry_once_and_a_rerun_skips_them(tmp_path):
         assert rounds_in(run.run_dir) == [0, 1]
         record = json.loads((run.run_dir / "suite-run.json").read_text())
         assert record["entry"] == run.entry.name and record["seed"] == run.seed and record["commits"]
-        payload = json.loads((run.run_dir / record["evaluations"]["test"]["file"]).read_text())
-        assert payload["seeds"] == [0, 1] and payload["num_corrections"] == 2 and payload["max_tasks"] == 4
+        evaluated = read_eval(run.run_dir / record["evaluations"]["test"]["file"])
+        assert evaluated.seeds == (0, 1) and evaluated.num_corrections == 2 and evaluated.max_tasks == 4
     # the suite's settings went into each run's config: seed and evaluation
     assert "seed: 1" in (out / "gpl" / "seed1" / "config.yaml").read_text()
     stamp = (out / "gpl" / "seed0" / "metrics.jsonl").stat().st_mtime_ns
@@ -148,7 +150,7 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
               progress=False)
     # GPL's c1 cell is the mean over training seeds of each run's eval.json completion, ± its 95 % t
     # interval's half-width (t(0.975, 1) = 12.706)
-    per_seed = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["completion"][1] for s in (0, 1)]
+    per_seed = [read_eval(out / "multiroom-gpl" / f"seed{s}" / "eval.json").completion[1] for s in (0, 1)]
     mean, half = statistics.fmean(per_seed), 12.7062047 * statistics.stdev(per_seed) / 2 ** 0.5
     assert main(["suite", "report", str(out), "--out", str(tmp_path / "own")]) == 0
     own = (tmp_path / "own" / "report.md").read_text()
@@ -186,12 +188,11 @@ def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_p
     listed = [line for line in not_run.splitlines() if line.startswith("- ")]
     assert "- `multiroom-gpl`: training seed(s) 2, 3, 4" in listed and len(listed) == len(paper.entries)
     assert "- `multiroom-no-trajectory`: training seed(s) 0, 1, 2, 3, 4" in listed
-    effort = json.loads((out / "multiroom-gpl" / "seed0" / "eval.json").read_text())["correction_effort"]
+    effort = read_eval(out / "multiroom-gpl" / "seed0" / "eval.json").correction_effort
     effort_md = md.split("## Correction effort", 1)[1].split("\n## ", 1)[0]
     effort_row = next(line for line in effort_md.splitlines() if line.startswith("| multiroom-gpl |"))
-    auc = [json.loads((out / "multiroom-gpl" / f"seed{s}" / "eval.json").read_text())["correction_effort"]["completion_auc"]
-           for s in (0, 1)]
-    assert f"{statistics.fmean(auc):.3f}" in effort_row and effort["unsolved_fraction"] >= 0
+    auc = [read_eval(out / "multiroom-gpl" / f"seed{s}" / "eval.json").correction_effort.completion_auc for s in (0, 1)]
+    assert effort is not None and f"{statistics.fmean(auc):.3f}" in effort_row and effort.unsolved_fraction >= 0
     results = collect_results(out)
     assert {(r.entry, r.evaluation) for r in results} == {("multiroom-gpl", "test"), ("multiroom-gpl", "test-c10"),
                                                           ("multiroom-instruction", "test")}
@@ -240,8 +241,9 @@ def test_held_out_phrasings_are_an_evaluation_and_older_records_still_count(tmp_
     run_suite(suite, out, serial=True, progress=False)
     run = plan(suite, out)[0]
     record = json.loads((run.run_dir / "suite-run.json").read_text())
-    heldout = json.loads((run.run_dir / record["evaluations"]["test-heldout-phrasings"]["file"]).read_text())
-    assert heldout["phrasings"] == "heldout" and record["evaluations"]["test"]["file"] != heldout
+    heldout = read_eval(run.run_dir / record["evaluations"]["test-heldout-phrasings"]["file"])
+    assert heldout.phrasings == "heldout"
+    assert record["evaluations"]["test"]["file"] != record["evaluations"]["test-heldout-phrasings"]["file"]
     for ev_record in record["evaluations"].values():  # as an older gpl-dist wrote them
         if ev_record["settings"]["phrasings"] == "canonical":
             del ev_record["settings"]["phrasings"]
@@ -254,12 +256,13 @@ def test_held_out_phrasings_are_an_evaluation_and_older_records_still_count(tmp_
 
 def test_the_effort_table_says_when_a_run_was_evaluated_before_effort_was_recorded(tmp_path):
     from gpl_dist.app.suite.report import RunResult, effort_markdown
+    from learner.evaluate import CorrectionEffort
 
     def result(entry, effort):
         return RunResult(entry, 0, tmp_path, "test", (0.1, 0.5), tmp_path / "eval.json", (), ("abc",), 1.0, 1.0, effort)
 
-    md = effort_markdown([result("old", None), result("new", {"corrections_to_solve": 2.0, "words_per_solved_task": 6.0,
-                                                                "unsolved_fraction": 0.5, "completion_auc": 0.3})])
+    md = effort_markdown([result("old", None), result("new", CorrectionEffort(corrections_to_solve=2.0, unsolved_fraction=0.5,
+                                                                               words_per_solved_task=6.0, completion_auc=0.3))])
     assert "| new | 2.000 | 6.000 | 0.500 | 0.300 | 1 |" in md
     assert "| old | — | — | — | — | none: evaluated before the effort was recorded" in md
 
@@ -331,7 +334,7 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
     only its rounds left) and its evaluations; an entry of a domain with no finished run has no
     estimate and the total says "at least"; another suite's folder predicts a new one."""
     from gpl_dist.app.suite.cost import predict
-    from gpl_dist.app.suite.runs import read_record
+    from gpl_dist.app.suite.one_run import read_record
 
     out = tmp_path / "out"
     done = write_suite(tmp_path / "a.yaml", {"gpl": entry()})
@@ -361,8 +364,9 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
 
 def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive_and_report(tmp_path):
     from gpl_dist.app.suite.archive import archive_runs
-    from gpl_dist.app.suite.curves import CurveSettings, compute_curve, compute_curves, curve_tasks
-    from gpl_dist.app.suite.rundata import CURVE_FILE, learning_curve
+    from gpl_dist.app.suite.curves import compute_curve, compute_curves, curve_tasks
+    from gpl_dist.app.suite.records import CURVE_FILE, CurveSettings, read_curve
+    from gpl_dist.app.suite.run_facts import learning_curve
     from gpl_dist.splits import split_tasks
     from learner.evaluate import evaluate_policy, load_trained_policy
 
@@ -376,11 +380,11 @@ def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive
     assert len(tasks) == 3 and set(tasks) <= set(valid) and tasks[-1] > valid[len(valid) // 2]  # spread over the split
     logged: list[str] = []
     assert compute_curves(out, settings=settings, log=logged.append) == [run_dir / CURVE_FILE]
-    payload = json.loads((run_dir / CURVE_FILE).read_text())
-    assert payload["rounds"] == [0, 1] and len(logged) == 2 and payload["settings"]["split"] == "valid"
+    written = read_curve(run_dir / CURVE_FILE)
+    assert written.rounds == (0, 1) and len(logged) == 2 and written.settings.split == "valid"
     cfg, model, r = load_trained_policy(run_dir, str(run_dir / "checkpoints" / "round-000000.pt"))
     again = evaluate_policy(cfg, model, num_corrections=1, seeds=(0,), split="valid", tasks=tasks)
-    assert r == 0 and payload["completion"][0] == again.completion  # each point is that round's weights on valid
+    assert r == 0 and list(written.completion[0]) == again.completion  # each point is that round's weights on valid
     compute_curve(run_dir, settings, log=logged.append)
     assert len(logged) == 2  # a finished curve is not computed again
     curve = learning_curve(run_dir)
@@ -416,10 +420,11 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     tasks of their test splits) is left out."""
     import shutil
 
-    from gpl_dist.app.suite.curves import CurveSettings, curve_tasks
+    from gpl_dist.app.suite.curves import curve_tasks
+    from gpl_dist.app.suite.records import CURVE_FILE, CurveSettings, read_curve
     from gpl_dist.app.suite.report_controls import plateau_table
     from gpl_dist.app.suite.report_data import run_curves
-    from gpl_dist.app.suite.rundata import CURVE_FILE, learning_curve
+    from gpl_dist.app.suite.run_facts import learning_curve
     from gpl_dist.splits import split_tasks
 
     suite = load_suite(REPO / "configs" / "suites" / "paper.yaml")
@@ -439,11 +444,11 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     assert ("multiroom", "heldout4_train", "heldout4_valid") in chosen and ("relocation", "train", "valid") in chosen
     run = tmp_path / "multiroom-heldout-gpl" / "seed0"
     shutil.copytree(REPO / "docs" / "paper-report" / "runs" / "multiroom-heldout-gpl" / "seed0", run)
-    curve = json.loads((run / CURVE_FILE).read_text())
-    curve["settings"]["split"] = "heldout4_valid"
-    (run / CURVE_FILE).write_text(json.dumps(curve))
+    curve = read_curve(run / CURVE_FILE)
+    on = lambda split: dataclasses.replace(curve, settings=dataclasses.replace(curve.settings, split=split))  # noqa: E731
+    (run / CURVE_FILE).write_text(on("heldout4_valid").to_json())
     assert learning_curve(run).valid and not learning_curve(run).off_split
-    (run / CURVE_FILE).write_text(json.dumps({**curve, "settings": {**curve["settings"], "split": "valid"}}))
+    (run / CURVE_FILE).write_text(on("valid").to_json())
     assert learning_curve(run).valid == () and learning_curve(run).off_split == "valid"
     results = collect_results(tmp_path, log=lambda _: None)
     table = plateau_table(results, {}, run_curves(results), {})
@@ -460,7 +465,7 @@ def test_every_paper_run_is_chosen_on_tasks_it_neither_trains_nor_is_tested_on(t
     shutil.copy(run / "metrics.jsonl", corridor / "metrics.jsonl")
     module = REPO / "tests" / "domains" / "corridor.py"
     (corridor / "config.yaml").write_text(f"env: {{domain: corridor, domain_module: {module}}}\n")
-    (corridor / CURVE_FILE).write_text(json.dumps({**curve, "settings": {"split": "valid"}}))
+    (corridor / CURVE_FILE).write_text(on("valid").to_json())
     unregister_domain("corridor")
     assert learning_curve(corridor).valid and learning_curve(corridor).off_split == ""
     assert "corridor" not in domain_names()  # reading it imported nothing
@@ -493,10 +498,10 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
     'flat'; a curve not computed to the run's last round is not read."""
     import shutil
 
+    from gpl_dist.app.suite.records import CURVE_FILE, CurveRecord, CurveSettings
     from gpl_dist.app.suite.report import RunResult
     from gpl_dist.app.suite.report_controls import plateau_table
     from gpl_dist.app.suite.report_data import SuitePlan, run_curves, trained_longer
-    from gpl_dist.app.suite.rundata import CURVE_FILE
 
     metrics = REPO / "docs" / "paper-report" / "runs" / "multiroom-full-info" / "seed0" / "metrics.jsonl"
     rounds = len({json.loads(line)["round"] for line in metrics.read_text().splitlines() if line.strip()})
@@ -512,15 +517,14 @@ def test_the_plateau_table_says_which_entry_was_still_rising_on_valid(tmp_path):
             values = [[0.5]] * (rounds - 1) + [[0.5 + gain]]
             if entry == "peaked":  # best at round 1 (0.8 + 0.02 * seed), flat at 0.6 over its last round
                 values = [[0.5], [0.8 + 0.02 * seed]] + [[0.6]] * (rounds - 2)
-            (run_dir / CURVE_FILE).write_text(json.dumps({"settings": {"split": "valid"}, "rounds": list(range(rounds)),
-                                                          "completion": values}))
+            (run_dir / CURVE_FILE).write_text(CurveRecord(CurveSettings(), tuple(range(rounds)), tuple(map(tuple, values)),
+                                                          ((1.0,),) * rounds).to_json())
             results.append(RunResult(entry, seed, run_dir, "test", (0.5,), run_dir / "eval.json", (), (), 0.0, 0.0))
     short = tmp_path / "short" / "seed0"  # a curve stopped before the last round
     short.mkdir(parents=True)
     shutil.copy(metrics, short / "metrics.jsonl")
     shutil.copy(metrics.with_name("config.yaml"), short / "config.yaml")
-    (short / CURVE_FILE).write_text(json.dumps({"settings": {"split": "valid"}, "rounds": [0, 1],
-                                                "completion": [[0.1], [0.9]]}))
+    (short / CURVE_FILE).write_text(CurveRecord(CurveSettings(), (0, 1), ((0.1,), (0.9,)), ((0.0,), (1.0,))).to_json())
     results.append(RunResult("short", 0, short, "test", (0.5,), short / "eval.json", (), (), 0.0, 0.0))
     # the entry trained longer: the same definition but more rounds (the suite file's), whatever its name
     plan = SuitePlan({"rising": (0,), "rising-more": (0,)}, {}, {
@@ -549,7 +553,7 @@ def test_a_run_trained_again_under_the_same_numerics_gives_the_same_files_and_st
     """The record names the machine's numerics fingerprint; a second training of the same entry and
     seed under it writes the same losses and the same eval; status marks the run 'numerics as
     here', and not once its record names another machine's."""
-    from gpl_dist.app.suite.runs import machine_numerics, read_record
+    from gpl_dist.app.suite.one_run import machine_numerics, read_record
 
     path = write_suite(tmp_path / "suite.yaml", {"gpl": entry()})
     suite = load_suite(path)
@@ -566,7 +570,7 @@ def test_a_run_trained_again_under_the_same_numerics_gives_the_same_files_and_st
             rows = [[{k: json.loads(line).get(k) for k in keep} for line in p.read_text().splitlines()] for p in (a, b)]
             assert rows[0] == rows[1]
         else:
-            assert json.loads(a.read_text())["completion"] == json.loads(b.read_text())["completion"]
+            assert read_eval(a).completion == read_eval(b).completion
     assert main(["suite", "status", str(path), "--out", str(first)]) == 0
     printed = capsys.readouterr().out
     assert "; numerics as here)" in printed and "of the 1 trained runs, 1 were trained under it" in printed

@@ -16,7 +16,7 @@ from gpl_dist.app.suite.report import (
     wanted_runs,
 )
 from gpl_dist.app.suite.report_paper import load_paper
-from gpl_dist.app.suite.rundata import run_budget, run_health
+from gpl_dist.app.suite.run_facts import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
 from learner.driver import RoundMetrics
 from learner.health import EncoderHealth

@@ -123,6 +123,64 @@ def test_the_hint_is_what_the_runs_oracle_says_after_the_attempt(teacher, run):
     assert episode.hint() == expected[0].correction
 
 
+@pytest.fixture(scope="module")
+def paraphrased(tmp_path_factory) -> Teacher:
+    """A run trained with the domain's training paraphrases (``model.paraphrases``)."""
+    return Teacher(_train(tmp_path_factory.mktemp("teach-paraphrased") / "run", "model.paraphrases=true"))
+
+
+def _said(texts) -> set[str]:
+    return {" ".join(split_words(t)) for t in texts}
+
+
+def test_a_run_trained_without_paraphrases_offers_none_and_warns_on_them(teacher, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from gpl_dist.app.teach_web import create_app
+
+    kind = teacher.cfg.env.correction_kind
+    own = _said(MULTIROOM.phrasings_of(kind))
+    only_paraphrases = _said(MULTIROOM.paraphrased(MULTIROOM.phrasings_of(kind), ("train", "heldout"))) - own
+    assert not teacher.paraphrases and only_paraphrases
+    examples = TestClient(create_app(teacher, tmp_path), base_url="http://127.0.0.1").get("/api/info").json()["examples"]
+    assert examples == teacher.examples() and len(examples) == 6 and _said(examples) <= own
+    assert not _said(teacher.phrasings) & only_paraphrases  # never suggested
+    check = teacher.check("go into the blue room")  # a training paraphrase of "enter the blue room"
+    assert check.usable and check.warning is not None and check.suggestion in MULTIROOM.phrasings_of(kind)
+    assert teacher.check("enter the blue room").warning is None
+
+
+def test_a_run_trained_with_paraphrases_offers_and_accepts_them(paraphrased, tmp_path):
+    from fastapi.testclient import TestClient
+
+    from gpl_dist.app.teach_web import create_app
+
+    kind = paraphrased.cfg.env.correction_kind
+    canonical = _said(MULTIROOM.phrasings_of(kind))
+    trained = _said(MULTIROOM.phrasings_of(kind, paraphrases=True))
+    examples = TestClient(create_app(paraphrased, tmp_path), base_url="http://127.0.0.1").get("/api/info").json()["examples"]
+    assert examples == paraphrased.examples() and len(examples) == 6
+    assert _said(examples) <= trained and _said(examples) - canonical and _said(examples) & canonical
+    assert trained - canonical and _said(paraphrased.phrasings) == trained
+    said = "go into the blue room"
+    assert " ".join(split_words(said)) in trained - canonical
+    check = paraphrased.check(said)  # a training paraphrase: known, no suggestion, no warning
+    assert check.usable and check.unknown_words == () and check.suggestion is None and check.warning is None
+    assert paraphrased.check("go into the blu room").suggestion == said  # the closest trained phrasing: a paraphrase
+    heldout = _said(MULTIROOM.paraphrased(MULTIROOM.phrasings_of(kind), ("heldout",))) - trained
+    assert heldout and paraphrased.check(sorted(heldout)[0]).warning is not None  # never trained on
+    other = MULTIROOM.paraphrased(MULTIROOM.phrasings_of("directional"), ("train",))[1]  # another kind's paraphrase
+    assert paraphrased.check(other).warning is not None
+    episode = paraphrased.episode(TASK, seed=3)
+    episode.attempt()
+    sent = episode.attempt(said)
+    assert sent.check is not None and sent.check.warning is None
+    vocab = paraphrased.model.vocabulary
+    assert sent.record.attempt_index == 1 and vocab.unk_id not in sent.check.token_ids
+    hint = episode.hint()  # the oracle's sentence, of the run's kind: one it trained on
+    assert " ".join(split_words(hint)) in trained
+
+
 def test_tasks_are_chosen_by_id_instruction_or_draw(teacher):
     env = MULTIROOM.make_env(TASK)
     shouted = "  " + env.instruction.upper() + "!! "

@@ -432,3 +432,49 @@ def test_the_numerics_fingerprint_is_stable_here_and_tells_other_arithmetic_apar
     assert len(here) == 12 and int(here, 16) >= 0
     assert _fingerprint_in_a_fresh_process() == here
     assert _fingerprint_in_a_fresh_process(MKL_CBWR="COMPATIBLE", ATEN_CPU_CAPABILITY="default") != here
+
+
+@pytest.mark.parametrize("thread", [False, True])
+def test_bf16_autocast_trains_where_native_and_is_refused_elsewhere(tmp_path, monkeypatch, thread):
+    """``training.autocast=bf16`` trains under bf16 autocast on a CPU with native bf16 (other
+    weights than fp32's, the same on a second run: the bf16 kernels are deterministic too, on
+    both threads of ``conditioning_thread``), and on a CPU without it is refused in one line
+    before anything trains. The CPU kind this machine lacks is the one that is patched in."""
+    import learner.cpu
+    from gpl_dist.config import ConfigError
+
+    view = _view(tmp_path)
+
+    def trained(autocast: str):
+        learner = Learner(build_model(get_domain("multiroom"), seed=0, conv_batchnorm=True),
+                          _cfg(autocast=autocast, conditioning_thread=thread), seed=1)
+        stats = learner.train_round(view)
+        learner.close()
+        return stats, state_dict_to_numpy(learner.model)
+
+    native = learner.cpu.native_bf16()
+    for cpu_has_bf16 in (native, not native):
+        monkeypatch.setattr(learner.cpu, "native_bf16", lambda v=cpu_has_bf16: v)
+        if not cpu_has_bf16:
+            with pytest.raises(ConfigError, match="training.autocast=bf16 needs a CPU with native bf16"):
+                trained("bf16")
+            continue
+        (s32, w32), (s16, w16), (s16b, w16b) = trained("none"), trained("bf16"), trained("bf16")
+        assert np.isfinite(s16.loss) and s16.num_steps == s32.num_steps >= 2
+        assert any(not np.array_equal(w32[k], w16[k]) for k in w32)  # bf16 arithmetic, not fp32's
+        assert all(w.dtype == np.float32 for w in w16.values() if w.dtype.kind == "f")  # fp32 master weights
+        assert s16.loss == s16b.loss and all(np.array_equal(w16[k], w16b[k]) for k in w16)
+
+
+def test_train_refuses_bf16_autocast_on_a_cpu_without_native_bf16_before_anything_is_written(tmp_path, monkeypatch):
+    """``gpl-dist train --set training.autocast=bf16`` on a CPU without native bf16 stops in its
+    preflight: one line, no run dir written (this machine's CPU kind is patched to the other)."""
+    import learner.cpu
+    from gpl_dist.cli import main
+
+    monkeypatch.setattr(learner.cpu, "native_bf16", lambda: False)
+    run = tmp_path / "run"
+    smoke = Path(__file__).resolve().parents[1] / "configs" / "multiroom-smoke.yaml"
+    code = main(["train", "--config", str(smoke), "--serial", "--run-dir", str(run),
+                 "--set", "training.autocast=bf16"])
+    assert code != 0 and not run.exists()

@@ -68,6 +68,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from gpl_dist.app.replay import step_through
 from gpl_dist.config import load_config
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
@@ -398,19 +399,13 @@ def _episode(EpisodeBuffer, domain, index: int, task_id: int, seed: int, instruc
     """One attempt as a Minari episode: replayed from ``seed`` through ``actions`` (rewards, the final
     state), checked against the ``stored`` states it acted in; ``correction`` (and its ids) is the
     one that led to it ("" for a first attempt), repeated at every step."""
-    env = domain.make_env(task_id)
-    first, info = env.reset(seed=seed)
-    observations, rewards, completion, success = [np.asarray(first)], [], [info["completion"]], [info["success"]]
-    for act in actions.tolist():
-        o, reward, _, _, info = env.step(act)
-        observations.append(np.asarray(o))
-        rewards.append(float(reward))
-        completion.append(float(info["completion"]))
-        success.append(bool(info["success"]))
-    replayed = np.stack(observations)
+    course = step_through(domain, task_id, actions, seed, keep_observations=True)
+    replayed = course.observations
+    assert replayed is not None
     if len(actions) != len(stored) or not np.array_equal(replayed[:-1], stored):
         raise UsageError(f"{what} does not replay to its stored states: its final state cannot be recovered")
-    n = len(observations)
+    rewards, completion, success = course.rewards.tolist(), course.completion.tolist(), course.success.tolist()
+    n = len(replayed)
     return EpisodeBuffer(
         id=index, seed=seed,
         observations={"observation": replayed, "instruction": [instruction] * n,

@@ -31,6 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from gpl_dist.app.rendering import replay_attempt
+from gpl_dist.app.replay import step_through
 from gpl_dist.config import RunConfig
 from gpl_dist.corrections import make_corrector
 from gpl_dist.domains import get_domain
@@ -95,7 +96,7 @@ class TrainedPolicy:
     def solved_at(self, attempt: Attempt) -> int | None:
         """The step (1-based: after that many actions) at which ``attempt`` first solved its task;
         None when it never did. The attempt runs on after it (the paper's protocol)."""
-        return replay_attempt(self.domain.name, attempt.task_id, attempt.actions, attempt.seed, render=False).solved_at
+        return step_through(self.domain, attempt.task_id, attempt.actions, attempt.seed).solved_at
 
     def frames(self, attempt: Attempt) -> list[np.ndarray]:
         """RGB frames of ``attempt``: its start state and the state after each action."""
@@ -103,10 +104,7 @@ class TrainedPolicy:
 
     def oracle_correction(self, attempt: Attempt, seed: int = 0) -> str:
         """What the run's correction oracle says after ``attempt`` (made with ``seed``)."""
-        env = self.domain.make_env(attempt.task_id)
-        env.reset(seed=attempt.seed)
-        for a in attempt.actions.tolist():
-            env.step(a)
+        env = step_through(self.domain, attempt.task_id, attempt.actions, attempt.seed).env
         oracle = make_corrector(self.domain.name, self.cfg.env.correction_kind)
         return oracle.correct(env, correction_rng(seed, attempt.task_id, attempt.attempt_index)).text
 

@@ -18,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 from PIL import Image
 
+from gpl_dist.app.replay import Course, step_through
 from gpl_dist.atomic import write_atomic
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
@@ -44,7 +45,7 @@ def parse_actions(text: str) -> list[int]:
 
 @dataclass(frozen=True)
 class Replay:
-    """An attempt stepped again from its reset seed and actions (``replay_attempt``).
+    """An attempt stepped again from its reset seed and actions and drawn (``replay_attempt``).
 
     Attributes:
         frames: RGB frames of the start state and the state after each action (empty unless drawn).
@@ -113,24 +114,18 @@ def _points(env: Any) -> tuple:
 
 def replay_attempt(domain_name: str, task_id: int, actions: Sequence[int] | np.ndarray, reset_seed: int,
                    render: bool = True) -> Replay:
-    """Step ``task_id``'s env from ``reset_seed`` through ``actions``, drawing each state when ``render``."""
-    domain = get_domain(domain_name)
+    """Step ``task_id``'s env from ``reset_seed`` through ``actions`` (``gpl_dist.app.replay.step_through``),
+    drawing each state when ``render``."""
     mode = picture_mode(domain_name) if render else None
-    env: Any = domain.make_env(task_id, render_mode=mode) if mode else domain.make_env(task_id)
-    _, info = env.reset(seed=reset_seed)
-    frames, points = ([draw(env, mode, info)], [_points(env)]) if render else ([], [])
-    completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
-    planned = np.asarray(actions).tolist()
-    for t, a in enumerate(planned[: domain.steps_per_attempt]):
-        if not 0 <= a < domain.num_actions:
-            raise UsageError(f"action {a} at step {t} is outside 0..{domain.num_actions - 1}")
-        _, _, _, _, info = env.step(a)
-        completion.append(float(info.get("completion", 0.0)))
-        success.append(bool(info.get("success", False)))
-        if render:
-            frames.append(draw(env, mode, info))
-            points.append(_points(env))
-    return Replay(frames, points, np.asarray(completion), np.asarray(success, dtype=bool))
+    frames: list[np.ndarray] = []
+    points: list[tuple] = []
+
+    def drawn(t: int, env: Any, info: dict) -> None:
+        frames.append(draw(env, mode, info))
+        points.append(_points(env))
+
+    course = step_through(domain_name, task_id, actions, reset_seed, render_mode=mode, visit=drawn if render else None)
+    return Replay(frames, points, course.completion, course.success)
 
 
 def attempt_frames(domain_name: str, task_id: int, actions: Sequence[int] | None = None, expert: bool = False,
@@ -181,7 +176,7 @@ def caption_lines(text: str) -> list[str]:
     return textwrap.wrap(text, CAPTION_CHARS) or [""]
 
 
-def step_caption(t: int, last: int, replay: Replay) -> str:
+def step_caption(t: int, last: int, replay: Replay | Course) -> str:
     """``step t/T``, the completion then, and where the task was solved once it has been."""
     solved = replay.solved_at
     text = f"step {t}/{last}: completion {replay.completion[t]:.2f}"

@@ -1,5 +1,6 @@
 """A run dir's upkeep, for ``gpl-dist inspect``, ``verify`` and ``clean``: where its buffer is, its
-checks beyond the buffer (identity, checkpoints), and the leftovers of dead writers.
+checks beyond the buffer (identity, checkpoints), the buffer's verification and quarantine, and the
+leftovers of dead writers. Each command's lines are made here; the CLI prints them.
 
 Nothing here imports a run's plug-in (its config is read with ``plugins="none"``) or follows a
 symbolic link out of the run: the buffer's own walks refuse links (``storage.fs``), and a linked
@@ -12,12 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gpl_dist.config import load_config
-from gpl_dist.errors import RunDirError
+from gpl_dist.errors import RunDirError, UsageError
 from learner.identity import refuse_linked_folders
-from storage import clean_leftovers
+from storage import clean_leftovers, format_inspection
 from storage.lease import Lease
 from storage.manifest import is_buffer
-from storage.verify import VerifyReport, verify_buffer
+from storage.verify import VerifyReport, quarantine_round, verify_buffer
 
 
 def buffer_root(path: str) -> str:
@@ -84,6 +85,62 @@ def run_checks(path: str, root: str) -> RunChecks:
     return RunChecks(identity.run_id, note, tuple(f"{p}: {what}" for p, what in problems))
 
 
+def inspect_run(run_dir: str, show_tasks: bool = False, checksums: bool = True, log=print) -> None:
+    """``gpl-dist inspect``: verify the buffer of ``run_dir`` (``checksums``: sha256, else sizes
+    only), then log its summary (``storage.format_inspection``; ``show_tasks``: a per-task table).
+    A run dir without a buffer logs what it holds instead; a bad buffer logs each problem, then
+    fails in one line."""
+    root = buffer_root(run_dir)
+    note = no_buffer_note(run_dir, root)
+    if note:
+        log(note)
+        return
+    report = verify_buffer(root, checksums=checksums)
+    for p in report.problems:
+        log(f"BAD  {p.path}: {p.message}")
+    report.raise_if_bad(f"run gpl-dist verify {run_dir} for the list and docs/buffer.md (Recovering)")
+    log(format_inspection(root, show_tasks=show_tasks))
+
+
+def verify_run(run_dir: str, quarantine: bool = False, log=print) -> tuple[str, ...]:
+    """``gpl-dist verify``: check the run's config, checkpoints and identity (``run_checks``) and
+    every committed file of its buffer, logging each problem and the totals (``report_lines``);
+    with ``quarantine``, under the buffer's lease, move its bad rounds under ``quarantine/``
+    (never past a link, never a whole buffer of another run: ``UsageError``) and verify again.
+    Returns the error lines (none when every check held)."""
+    root = buffer_root(run_dir)
+    checks = run_checks(run_dir, root)
+    for line in ([checks.note] if checks.note else []) + [f"BAD  {line}" for line in checks.problems]:
+        log(line)
+    errors = [f"{len(checks.problems)} problem(s) with {run_dir}'s config.yaml or checkpoints (named above; verify "
+              "never moves them)"] if checks.problems else []
+    if not quarantine:
+        report = verify_buffer(root, run_id=checks.run_id)
+        log("\n".join(report_lines(report)))
+    else:
+        with Lease(root, "gpl-dist verify --quarantine"):  # before verifying: no run may change it meanwhile
+            report = verify_buffer(root, run_id=checks.run_id)
+            log("\n".join(report_lines(report)))
+            refuse = [p for p in report.problems if p.kind == "link" or (p.kind == "foreign" and p.round_index is None)]
+            if refuse:  # a link, or a whole buffer of another run: setting rounds aside would move what is not ours
+                raise UsageError(f"--quarantine moves nothing here: {refuse[0].path}: {refuse[0].message} "
+                                 "(remove the link, or verify the run the buffer belongs to)")
+            for r in report.bad_rounds:
+                moved = quarantine_round(root, r)
+                what = f"moved {', '.join(moved)}" if moved else "nothing was left of it; recorded it as missing"
+                log(f"quarantined round {r}: {what} under quarantine/")
+            if report.bad_rounds:
+                report = verify_buffer(root, run_id=checks.run_id)
+                log("\n".join(report_lines(report)))
+        if report.ok and not checks.problems:
+            log(f"resume with: gpl-dist train --run-dir {run_dir} --resume "
+                "(rounds after the last checkpoint are collected again)")
+    if not report.ok:
+        errors.append(f"{len(report.problems)} problem(s) in {report.root}; bad rounds {list(report.bad_rounds)} "
+                      "(set them aside with --quarantine; see docs/buffer.md, Recovering)")
+    return tuple(errors)
+
+
 @dataclass(frozen=True)
 class Cleaned:
     """What ``clean`` removed (or would, with ``dry_run``), relative to the buffer root or as paths,
@@ -91,6 +148,16 @@ class Cleaned:
 
     removed: tuple[str, ...]
     unlisted: int
+    dry_run: bool = False
+
+    def lines(self, run_dir: str) -> list[str]:
+        """What ``gpl-dist clean`` prints of it: each path, the count, and the unlisted paths kept."""
+        verb = "would remove" if self.dry_run else "removed"
+        lines = [f"{verb} {path}" for path in self.removed] + [f"{verb} {len(self.removed)} leftover(s)"]
+        if self.unlisted:
+            lines.append(f"kept {self.unlisted} path(s) under data/ that no manifest lists (clean never removes committed "
+                         f"data); see gpl-dist verify {run_dir}")
+        return lines
 
 
 def clean_run(run_dir: str, dry_run: bool = False) -> Cleaned:
@@ -115,7 +182,7 @@ def clean_run(run_dir: str, dry_run: bool = False) -> Cleaned:
     removed = clean_leftovers(root, dry_run=dry_run) + _run_dir_temporaries(run_dir, dry_run)
     removed += teaching_leftovers(teaching, dry_run=dry_run)
     unlisted = sum(p.kind == "unlisted" for p in verify_buffer(root, checksums=False).problems)
-    return Cleaned(tuple(removed), unlisted)
+    return Cleaned(tuple(removed), unlisted, dry_run)
 
 
 def _run_dir_temporaries(path: str, dry_run: bool) -> list[str]:

@@ -3,8 +3,10 @@
 Each attempt is printed as text (the path, the final state, the step it solved the task at), with
 its completion and the path of a GIF of it; then the person types the next correction. Lines
 starting with ``:`` are commands: ``:hint`` (what the run's oracle would say), ``:undo`` (take the
-last correction back), ``:quit``. A correction with words the policy does not know, or that is none
-of the phrasings it was trained on, is shown with the closest known phrasing before it is sent:
+last correction back), ``:quit``. Examples of the corrections the policy was trained on (its
+correction kind, and its paraphrases when it was trained with them) are shown first. A correction
+with words the policy does not know, or that is none of the phrasings it was trained on, is shown
+with the closest of them before it is sent:
 Enter sends it as typed, ``:use`` the closest one (the log keeps both what was typed and what was
 sent). Lines typed while an attempt runs are dropped (they were typed before seeing it). Every
 attempt is logged (``gpl_dist.app.teaching``); the log and the GIFs are written under temporary
@@ -55,6 +57,9 @@ def _teach(episode: TeachingEpisode, out_dir: Path, always_hint: bool, read_line
     log_dir, gif_dir = out_dir / "log", ensure_folder(out_dir / "gifs")
     say(f"task {episode.task_id} of {episode.teacher.domain.name} ({episode.split} split), seed {episode.seed}: "
         f"'{episode.instruction}'")
+    examples = episode.teacher.examples()
+    if examples:
+        say(f"corrections this policy was trained on look like: {', '.join(repr(e) for e in examples)}")
     log_path = ""
     correction: str | None = None
     typed: str | None = None

@@ -63,7 +63,6 @@ from gpl_dist.app.teaching import (
     TeachingEpisode,
     TeachingError,
     TeachingWriteError,
-    check_correction,
     check_out_folder,
     episode_log_bytes,
     teaching_writer,
@@ -271,16 +270,15 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
 
     @app.get("/api/info")
     def info() -> dict:
-        phrasings = domain.phrasings_of(teacher.cfg.env.correction_kind)  # the kind this policy trained on
         return {"domain": domain.name, "run_dir": teacher.run_dir, "checkpoint_round": teacher.round_index,
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
-                "examples": list(phrasings[:: max(1, len(phrasings) // 6)][:6]),
+                "examples": teacher.examples(),  # the kind (and paraphrases) this policy trained on
                 "example_instruction": domain.instruction_of(split_tasks(domain.name, split)[0])}
 
     @app.post("/api/check", response_model=CheckView)
     def check(body: CheckRequest) -> CheckView:
-        c = check_correction(domain, body.text, vocabulary=teacher.model.vocabulary, kind=teacher.cfg.env.correction_kind)
+        c = teacher.check(body.text)
         return CheckView(words=list(c.words)[:100], unknown_words=list(c.unknown_words)[:100],
                          suggestion=c.suggestion, problem=c.problem, warning=c.warning)
 

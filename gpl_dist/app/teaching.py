@@ -14,9 +14,10 @@ and any logged episode can be replayed exactly.
 
 **What a person types** is checked before it is used (``check_correction``): at most
 ``MAX_TEXT_CHARS`` characters, no control characters, at least one word the policy knows. Words it
-does not know are pointed out with the closest known phrasing (the domain's
-``correction_phrasings``) and reach the policy as ``<unk>``, as any unknown word would; a text of
-mostly unknown words (another language, noise) is refused.
+does not know are pointed out with the closest phrasing the policy was trained on (the domain's
+``correction_phrasings`` of the run's correction kind, with their training paraphrases when the
+run was trained with them: ``Teacher.phrasings``) and reach the policy as ``<unk>``, as any
+unknown word would; a text of mostly unknown words (another language, noise) is refused.
 
 **The log.** Every attempt of every episode is a row of ``<log dir>/<episode>.parquet`` (rewritten
 atomically after each attempt; ``pyarrow.dataset.dataset(log_dir)`` reads them all): see
@@ -56,10 +57,10 @@ from gpl_dist.app.rendering import (
     _captioned,
     caption_lines,
     frame_steps,
-    replay_attempt,
     step_caption,
     still_frame,
 )
+from gpl_dist.app.replay import step_through
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.language import Vocabulary, split_words
@@ -133,16 +134,18 @@ class CorrectionCheck:
 
 def check_correction(domain: DomainSpec, text: str, what: str = "correction",
                      vocabulary: Vocabulary | None = None, phrasings: tuple[str, ...] | None = None,
-                     kind: str | None = None) -> CorrectionCheck:
+                     kind: str | None = None, paraphrases: bool = False) -> CorrectionCheck:
     """``CorrectionCheck`` of ``text`` for a policy of ``domain`` that reads ``vocabulary`` (default
     the domain's; a model trained with paraphrases reads more); ``what`` names it in messages,
-    ``phrasings`` are the known sentences it is compared with (default: those of correction
-    ``kind``, the run's, ``DomainSpec.phrasings_of``; every kind's without one). A sentence of
-    another kind is usable, with a warning that the policy never trained on it."""
+    ``phrasings`` are the known sentences it is compared with (default: those the policy trained
+    on, ``DomainSpec.phrasings_of(kind, paraphrases)``: correction ``kind``'s, the run's, with their
+    training paraphrases when it was trained with them; every kind's without a kind). A sentence the
+    policy never trained on but the domain knows (another kind's, or a paraphrase it was not
+    trained with) is usable, with a warning saying so."""
     text = (text if isinstance(text, str) else "").strip()
     vocab = vocabulary or domain.vocabulary
     if phrasings is None:
-        phrasings = domain.phrasings_of(kind)
+        phrasings = domain.phrasings_of(kind, paraphrases)
     if len(text) > MAX_TEXT_CHARS:  # before any other work: a pasted book costs nothing
         return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], (), (), (), None,
                                f"the {what} is {len(text)} characters long; at most {MAX_TEXT_CHARS} are read")
@@ -167,10 +170,24 @@ def check_correction(domain: DomainSpec, text: str, what: str = "correction",
     warning = None
     if kind is not None and not problem and suggestion is not None:
         said = " ".join(words)
-        if any(" ".join(split_words(p)) == said for p in domain.phrasings_of(None)):
+        if said in _said(domain.phrasings_of(None, paraphrases)):
             warning = (f"this policy was trained on '{kind}' corrections and never on this sentence (another kind's): "
                        "it may not follow it")
+        elif said in _said(domain.paraphrased(domain.phrasings_of(None), ("train", "heldout"))):
+            trained = "with the training paraphrases only" if paraphrases else "without paraphrases"
+            warning = (f"this policy was trained on '{kind}' corrections {trained} and never on this phrasing "
+                       "(a paraphrase): it may not follow it")
     return CorrectionCheck(text[: MAX_TEXT_CHARS + 1], words, ids, unknown, suggestion, problem, warning)
+
+
+def _said(phrasings: tuple[str, ...]) -> set[str]:
+    """``phrasings`` as their lower-case words joined by spaces (how a typed text is compared)."""
+    return {" ".join(split_words(p)) for p in phrasings}
+
+
+def example_phrasings(phrasings: tuple[str, ...], count: int = 6) -> list[str]:
+    """``count`` of ``phrasings`` spread over them (every n-th), the examples a person is shown."""
+    return list(phrasings[:: max(1, len(phrasings) // count)][:count])
 
 
 def closest_phrasing(words: tuple[str, ...] | list[str], phrasings: tuple[str, ...]) -> str | None:
@@ -249,6 +266,11 @@ class Teacher:
         if max_corrections < 1:
             raise TeachingError(f"max corrections must be at least 1, got {max_corrections}")
         self.domain = self.policy.domain
+        #: the correction kind the policy was trained on, and whether with the training paraphrases
+        self.kind: str = self.cfg.env.correction_kind
+        self.paraphrases = bool(self.cfg.model.paraphrases)
+        #: the corrections the policy was trained on (the closest of them is suggested)
+        self.phrasings = self.domain.phrasings_of(self.kind, self.paraphrases)
         self.max_corrections = max_corrections
         self.greedy = greedy
         self.lock = threading.Lock()  # one rollout at a time: they share the model and the cores
@@ -281,6 +303,24 @@ class Teacher:
                                 f"word); the closest is '{check.suggestion}'")
         return matching[0][int(rng.integers(len(matching[0])))]
 
+    def check(self, text: str) -> CorrectionCheck:
+        """``check_correction`` of a correction against what this policy reads and was trained on
+        (its vocabulary, correction kind and paraphrases)."""
+        return check_correction(self.domain, text, vocabulary=self.model.vocabulary, phrasings=self.phrasings,
+                                kind=self.kind, paraphrases=self.paraphrases)
+
+    def examples(self, count: int = 6) -> list[str]:
+        """``count`` corrections this policy was trained on, to show a person: its kind's sentences,
+        spread over them, every second one said as a training paraphrase when it was trained with them."""
+        canonical = example_phrasings(self.domain.phrasings_of(self.kind), count)
+        if not self.paraphrases:
+            return canonical
+        shown = []
+        for i, text in enumerate(canonical):
+            others = self.domain.paraphrased([text], ("train",))[1:]
+            shown.append(others[0] if i % 2 and others else text)
+        return shown
+
     def episode(self, task_id: int, seed: int = 0, source: str = "terminal") -> "TeachingEpisode":
         """A new teaching episode of ``task_id`` (``resolve_task``) with action sampling seeded by ``seed``."""
         _check_seed(seed)
@@ -295,7 +335,9 @@ class Teacher:
                 raise TeachingError(str(err)) from None
 
     def oracle_hint(self, attempt: Attempt, seed: int) -> str:
-        """What the run's oracle would say after ``attempt`` (of an episode made with ``seed``)."""
+        """What the run's oracle would say after ``attempt`` (of an episode made with ``seed``): a
+        sentence of the run's correction kind, said canonically (one of ``phrasings``, with or
+        without paraphrases)."""
         return self.policy.oracle_correction(attempt, seed)
 
 
@@ -348,9 +390,8 @@ class TeachingEpisode:
         return self.teacher.max_corrections - max(0, len(self.attempts) - 1)
 
     def check(self, text: str) -> CorrectionCheck:
-        """``check_correction`` against this episode's policy (for highlighting as one types)."""
-        return check_correction(self.teacher.domain, text, vocabulary=self.teacher.model.vocabulary,
-                                kind=self.teacher.cfg.env.correction_kind)
+        """``Teacher.check``: against this episode's policy (for highlighting as one types)."""
+        return self.teacher.check(text)
 
     def attempt(self, correction: str | None = None, typed: str | None = None) -> TaughtAttempt:
         """The next attempt: the first one without ``correction``, each later one after it.
@@ -418,7 +459,7 @@ class TeachingEpisode:
         self._check_replay(replayed, len(texts) + 1)
         new, check = replayed[-1], checks[-1] if checks else None
         said = check.text if check else new.instruction
-        solved_at = replay_attempt(self.teacher.domain.name, self.task_id, new.actions, new.seed, render=False).solved_at
+        solved_at = step_through(self.teacher.domain, self.task_id, new.actions, new.seed).solved_at
         return TaughtAttempt(
             index=new.attempt_index, said_before=said, check=check,
             completion=float(new.completion), success=bool(new.success), actions=new.actions.copy(),
@@ -434,10 +475,7 @@ class TeachingEpisode:
                 raise RuntimeError(f"replaying episode {self.episode_id}: attempt {old.index} came out differently")
 
     def _picture(self, reset_seed: int, actions: np.ndarray, solved_at: int | None) -> str:
-        env = self.teacher.domain.make_env(self.task_id, render_mode="ansi")
-        env.reset(seed=reset_seed)
-        for a in actions.tolist():
-            env.step(a)
+        env = step_through(self.teacher.domain, self.task_id, actions, reset_seed, render_mode="ansi").env
         ran = len(actions)
         note = (f"solved at step {solved_at} of {ran}" + (f" (the attempt ran on to step {ran})" if solved_at < ran else "")
                 if solved_at is not None else f"not solved in {ran} steps")
@@ -472,7 +510,7 @@ class TeachingEpisode:
         a = self.find(index, oracle)
         name = self.teacher.domain.name
         top = f"attempt {index + 1}: {'instruction' if index == 0 else 'correction'}: {a.said_before}"
-        course = replay_attempt(name, self.task_id, a.actions, a.reset_seed, render=False)  # the captions' numbers
+        course = step_through(name, self.task_id, a.actions, a.reset_seed)  # the captions' numbers
         last = len(course.completion) - 1
         lines = caption_lines(top)
 
@@ -545,38 +583,29 @@ T = TypeVar("T")
 
 def drawn_at(domain_name: str, task_id: int, actions: np.ndarray, reset_seed: int, steps: Collection[int],
              draw: Callable[[int, np.ndarray], T]) -> tuple[dict[int, T], Replay]:
-    """An attempt stepped again from ``reset_seed`` through ``actions`` (``rendering.replay_attempt``),
+    """An attempt stepped again from ``reset_seed`` through ``actions`` (``gpl_dist.app.replay.step_through``),
     drawn only at ``steps``: each frame is handed to ``draw`` (step, RGB frame) as it is drawn and not
     kept, so one full-size frame is held at a time, not one a step (101 frames of 1.1 MB a
     multi-room attempt). Returns what ``draw`` made, by step, and the replay: every step's
     completion, success and picture points, and the final frame alone (what ``still_frame`` draws)."""
-    domain = get_domain(domain_name)
     mode = rendering.picture_mode(domain_name)  # as replay_attempt draws: rgb_array, else text, else a card
-    env: Any = domain.make_env(task_id, render_mode=mode) if mode else domain.make_env(task_id)
-    _, info = env.reset(seed=reset_seed)
-    planned = np.asarray(actions).tolist()[: domain.steps_per_attempt]
-    wanted, last = set(steps), len(planned)
+    last = min(len(actions), get_domain(domain_name).steps_per_attempt)
+    wanted = set(steps)
     drawn: dict[int, T] = {}
-    points = [rendering._points(env)]
-    completion, success = [float(info.get("completion", 0.0))], [bool(info.get("success", False))]
-    final: np.ndarray | None = None
-    for t in range(last + 1):
-        if t > 0:
-            a = planned[t - 1]
-            if not 0 <= a < domain.num_actions:
-                raise UsageError(f"action {a} at step {t - 1} is outside 0..{domain.num_actions - 1}")
-            _, _, _, _, info = env.step(a)
-            completion.append(float(info.get("completion", 0.0)))
-            success.append(bool(info.get("success", False)))
-            points.append(rendering._points(env))
+    points: list[tuple] = []
+    final: list[np.ndarray] = []
+
+    def visit(t: int, env: Any, info: dict) -> None:
+        points.append(rendering._points(env))
         if t in wanted or t == last:
             frame = rendering.draw(env, mode, info)
             if t in wanted:
                 drawn[t] = draw(t, frame)
             if t == last:
-                final = frame
-    assert final is not None
-    return drawn, Replay([final], points, np.asarray(completion), np.asarray(success, dtype=bool))
+                final.append(frame)
+
+    course = step_through(domain_name, task_id, actions, reset_seed, render_mode=mode, visit=visit)
+    return drawn, Replay(final, points, course.completion, course.success)
 
 
 def _png(image: Any) -> bytes:

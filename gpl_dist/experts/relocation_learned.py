@@ -65,29 +65,36 @@ def load_weights() -> dict[str, np.ndarray]:
     return weights
 
 
-def policy_inputs(env: Any) -> np.ndarray:
-    """``(33,)`` float64: the observation (qpos 9, fixed blocks 10, qvel 9), target xy, block one-hot."""
-    e = getattr(env, "unwrapped", env)
-    x = np.empty(33)
-    x[0:9] = e.data.qpos
-    x[9:19] = FIXED_XY.reshape(-1)
-    x[19:28] = e.data.qvel
-    x[28:30] = e.task.target
-    x[30:33] = 0.0
-    x[30 + e.task.block] = 1.0
+#: Values of the network's input: the 28-d observation, the target (x, y) and the goal block's one-hot.
+INPUT_DIM = 33
+
+
+def input_rows(observations: Any, targets: Any, blocks: Sequence[int], dtype: Any = np.float64) -> np.ndarray:
+    """``(n, INPUT_DIM)`` of ``dtype``: each row the observation ``(28,)`` in the env's layout (qpos 9,
+    fixed blocks 10, qvel 9), the task's target xy and its goal block's one-hot; the one builder of
+    the expert's input, for the packaged expert and its training alike."""
+    n = len(blocks)
+    x = np.zeros((n, INPUT_DIM), dtype)
+    x[:, 0:28] = observations
+    x[:, 28:30] = targets
+    x[np.arange(n), [30 + int(b) for b in blocks]] = 1.0
     return x
 
 
 def policy_inputs_batch(envs: Sequence[Any]) -> np.ndarray:
-    """``(n, 33)`` float64: ``policy_inputs`` of each env, row by row (the same values)."""
+    """``(n, 33)`` float64 ``input_rows`` of each env's state: qpos, the fixed blocks and qvel read
+    in float64 from the simulator (not the env's float32 observation), its task's target and block."""
     es = [getattr(env, "unwrapped", env) for env in envs]
-    x = np.zeros((len(es), 33))
-    x[:, 0:9] = [e.data.qpos for e in es]
-    x[:, 9:19] = FIXED_XY.reshape(-1)
-    x[:, 19:28] = [e.data.qvel for e in es]
-    x[:, 28:30] = [e.task.target for e in es]
-    x[np.arange(len(es)), [30 + e.task.block for e in es]] = 1.0
-    return x
+    observations = np.empty((len(es), 28))
+    observations[:, 0:9] = [e.data.qpos for e in es]
+    observations[:, 9:19] = FIXED_XY.reshape(-1)
+    observations[:, 19:28] = [e.data.qvel for e in es]
+    return input_rows(observations, [e.task.target for e in es], [e.task.block for e in es])
+
+
+def policy_inputs(env: Any) -> np.ndarray:
+    """``(33,)`` float64: ``policy_inputs_batch`` of the one env."""
+    return policy_inputs_batch([env])[0]
 
 
 def batch_probs(weights: dict[str, np.ndarray], x: np.ndarray) -> np.ndarray:

@@ -41,7 +41,7 @@ from gpl_dist.app.suite.evidence import (
     read_json,
     write_checksums,
 )
-from gpl_dist.app.suite.rundata import CURVE_FILE, SWAP_FILE
+from gpl_dist.app.suite.records import CURVE_FILE, SWAP_FILE
 from gpl_dist.errors import RunDirError
 
 #: A run's files the archive keeps, beside the evaluation files its record names (and ``run.json``).

@@ -1,7 +1,7 @@
-"""A suite's runs as Ray tasks on a cluster: one of the two places the suite touches Ray (the other: ``rl_cluster``).
+"""A suite's runs as Ray tasks on a cluster: one of the two places the suite touches Ray (the other: ``rl.cluster``).
 
 Each unfinished (entry, seed) becomes one task (1 CPU: its driver, with the learner unless that
-is a GPU actor) that runs ``gpl_dist.app.suite.runs.execute``; inside it the run's ``RayCollector`` finds
+is a GPU actor) that runs ``gpl_dist.app.suite.one_run.execute``; inside it the run's ``RayCollector`` finds
 Ray already connected and starts its rollout actors (1 CPU each) on the same cluster. The records
 name the commit the suite's driver runs, not what a worker node's checkout says. Runs are started only while the
 cluster's CPUs hold every started run's task and actors: a run's task waiting for CPUs that other
@@ -17,14 +17,16 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from pathlib import Path
 
 import ray
 
-from gpl_dist.app.suite.runs import execute
+from gpl_dist.app.suite.one_run import execute
 from gpl_dist.app.suite.schedule import LocalPlan, local_plan
 from gpl_dist.app.suite.spec import Suite, SuiteRun
-from gpl_dist.config import RunConfig
+from gpl_dist.config import RunConfig, load_config
 from gpl_dist.errors import SuiteError
+from learner.driver import resume_config
 from workers.ray_collector import init_ray
 
 
@@ -106,6 +108,22 @@ def _train_task(cfg: RunConfig, run_dir: str, resume: bool) -> int:
     from learner.driver import run_training
 
     return len(run_training(cfg, run_dir, address="auto", resume=resume, progress=False).history)
+
+
+def train_seeds(config: str | None, run_dir: str, seeds: tuple[int, ...], overrides: dict[str, str],
+                resume: bool = False, log=print) -> None:
+    """``gpl-dist train --seeds``: one run per training seed in ``run_dir/seed<k>``, from ``config``
+    (the user's own file: its domain module is imported as asked) with ``overrides`` and the seed,
+    or with ``resume`` each run's own latest checkpoint's config; trained by ``train_at_once``, then
+    logs how to evaluate them."""
+    runs = []
+    for seed in seeds:
+        seed_dir = str(Path(run_dir) / f"seed{seed}")
+        runs.append((load_config(config, {**overrides, "seed": str(seed)}, plugins="own") if config
+                     else resume_config(seed_dir, overrides), seed_dir))
+    train_at_once(runs, resume=resume, log=log)
+    log(f"trained {len(runs)} run(s) under {run_dir} (seed{seeds[0]} .. seed{seeds[-1]}); evaluate each with: "
+        f"gpl-dist eval --run-dir {run_dir}/seed<k>")
 
 
 def train_at_once(runs: list[tuple[RunConfig, str]], resume: bool = False, cores: int | None = None, log=print) -> None:

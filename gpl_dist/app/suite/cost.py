@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from statistics import fmean
 
-from gpl_dist.app.suite.runs import read_record
+from gpl_dist.app.suite.one_run import read_record
 from gpl_dist.app.suite.spec import Suite, SuiteRun, plan
 from learner.checkpoint import rounds_trained
 
@@ -130,8 +130,8 @@ def _lookup(table: dict, keys: tuple) -> tuple[float | None, str]:
 def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tuple = (),
             measured_in: str | Path | None = None) -> SuiteCost:
     """The cost of every run of ``suite`` under ``out`` whose state (``states[run_dir]``, as
-    ``gpl_dist.app.suite.runs.run_state`` or ``running`` gives it) is not ``done``, and of the RL jobs
-    ``rl_left`` (``learner.rl.RLJob``s not done), from the work finished under ``measured_in``
+    ``gpl_dist.app.suite.one_run.run_state`` or ``running`` gives it) is not ``done``, and of the RL jobs
+    ``rl_left`` (``gpl_dist.app.suite.rl.per_task.RLJob``s not done), from the work finished under ``measured_in``
     (``out`` itself by default; another suite's output predicts a new one from its costs)."""
 
     source_dir = out if measured_in is None else measured_in

@@ -2,7 +2,7 @@
 
 A run keeps every round's weights (``checkpoints/round-NNNNNN.pt``) until it is archived, and the
 archive keeps only the last; so the curve is computed from a suite's run dirs, after training, and
-written into each run dir as ``curve-valid.json`` (``evidence.CURVE_FILE``), which the archive
+written into each run dir as ``curve-valid.json`` (``records.CURVE_FILE``, a ``CurveRecord``), which the archive
 keeps and the report draws. Whether a baseline was still improving at its last round is read
 here, never on the test split.
 
@@ -17,52 +17,15 @@ resumes where it stopped, and a finished curve is not computed again.
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import os
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from gpl_dist.app.suite.rundata import CURVE_FILE
+from gpl_dist.app.suite.records import CURVE_FILE, CurveRecord, CurveSettings, read_curve
+from gpl_dist.atomic import write_atomic
 from gpl_dist.config import RunConfig, config_from_dict
 from gpl_dist.errors import RunDirError
-from gpl_dist.splits import split_tasks, valid_split
+from gpl_dist.splits import split_tasks
 from learner.checkpoint import load_checkpoint
 from learner.evaluate import evaluate_policy, load_trained_policy
-
-#: Valid tasks a curve point is measured on (all of a smaller split).
-CURVE_TASKS = 250
-#: Evaluation seeds of a curve point.
-CURVE_SEEDS = (0,)
-#: Corrections at each curve point (the paper's meta-training count).
-CURVE_CORRECTIONS = 5
-
-
-@dataclass(frozen=True)
-class CurveSettings:
-    """What a curve point measures (recorded in the file; a file of other settings is recomputed).
-
-    Attributes:
-        split: the split evaluated: the run's valid split, which ``for_run`` sets (``compute_curve``
-            and ``swap.compute_swap`` call it, so a caller's value is replaced).
-        tasks: how many of its tasks, spread evenly.
-        seeds: evaluation seeds.
-        num_corrections: corrections given (baselines without corrections make one attempt).
-    """
-
-    split: str = "valid"
-    tasks: int = CURVE_TASKS
-    seeds: tuple[int, ...] = CURVE_SEEDS
-    num_corrections: int = CURVE_CORRECTIONS
-
-    def for_run(self, cfg: RunConfig) -> CurveSettings | None:
-        """These settings on the valid split of ``cfg``'s training split; None when it has none."""
-        split = valid_split(cfg.env.domain, cfg.env.train_split)
-        return None if split is None else dataclasses.replace(self, split=split)
-
-    def to_dict(self) -> dict:
-        return {"split": self.split, "tasks": self.tasks, "seeds": list(self.seeds), "num_corrections": self.num_corrections}
 
 
 def curve_tasks(domain: str, settings: CurveSettings) -> tuple[int, ...]:
@@ -85,8 +48,8 @@ def run_config(checkpoint: Path) -> RunConfig:
 def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
     """Fill ``run_dir/curve-valid.json`` with every round's completion on the run's valid split
     (resumes a partial file of the same settings; a file of other settings, another split among
-    them, is measured again); None when the run dir keeps no per-round weights or its training
-    split has no valid split."""
+    them, is measured again; a file that is no ``CurveRecord`` fails in one line naming it); None
+    when the run dir keeps no per-round weights or its training split has no valid split."""
     run_dir = Path(run_dir)
     ckpts = round_checkpoints(run_dir)
     if not ckpts:
@@ -96,28 +59,20 @@ def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings()
         return None
     settings = resolved
     path = run_dir / CURVE_FILE
-    payload: dict[str, Any] = {"settings": settings.to_dict(), "rounds": [], "completion": [], "success": [], "checkpoints": []}
+    record = CurveRecord(settings)
     if path.is_file():
-        try:
-            old = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as err:
-            raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err}); delete it to recompute") from None
-        if isinstance(old, dict) and old.get("settings") == payload["settings"]:
-            payload = old
-    done = set(payload["checkpoints"])
+        old = read_curve(path)
+        if old.settings == settings:
+            record = old
+    done = set(record.checkpoints)
     for ckpt in ckpts:
         if ckpt.name in done:
             continue
         cfg, model, round_index = load_trained_policy(run_dir, str(ckpt))
         result = evaluate_policy(cfg, model, num_corrections=settings.num_corrections, seeds=settings.seeds,
                                  split=settings.split, tasks=curve_tasks(cfg.env.domain, settings))
-        payload["rounds"].append(round_index)
-        payload["completion"].append(result.completion)
-        payload["success"].append(result.success)
-        payload["checkpoints"].append(ckpt.name)
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        tmp.write_text(json.dumps(payload, indent=1))
-        os.replace(tmp, path)
+        record = record.with_point(round_index, result.completion, result.success, ckpt.name)
+        write_atomic(path, record.to_json())
         log(f"{run_dir}: round {round_index} valid completion "
             + " ".join(f"c{k}={v:.3f}" for k, v in enumerate(result.completion)))
     return path

@@ -7,8 +7,8 @@ into each run dir it restores (its files' sums, relative to the run dir). ``suit
 check, for every run they count:
 
 - each of its files a checksum file covers, and that every file the report reads is covered;
-- each eval file's internal consistency: ``completion`` is the mean over seeds of ``per_seed``,
-  ``completion_std`` their spread, one ``per_seed`` row per evaluation seed, every value a
+- each eval file (read as ``learner.evaluate.EvalRecord``) agrees with itself: ``completion`` is
+  the mean over seeds of ``per_seed``, ``completion_std`` their spread, one ``per_seed`` row per evaluation seed, every value a
   fraction; the settings it records are the ones its ``suite-run.json`` names; its ``run_id``
   (when it records one) is the run's own.
 
@@ -20,6 +20,7 @@ eval file consistently before it is archived): the checksums are not signed.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -28,6 +29,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from gpl_dist.errors import RunDirError
+from learner.evaluate import EvalRecord
 from learner.identity import RUN_FILE, read_identity
 
 #: The checksum file of an archive (at its root) or of a restored run dir.
@@ -106,48 +108,54 @@ def _fraction(path: Path, what: str, value: Any) -> float:
     return float(value)
 
 
-def check_eval_payload(path: Path, payload: Mapping[str, Any], settings: Mapping[str, Any] | None = None,
-                       run_id: str | None = None) -> None:
-    """``EvidenceError`` naming ``path`` unless the eval file agrees with itself (see the module
-    docstring), with the ``settings`` its record names, and with ``run_id`` (when both record one)."""
-    completion, per_seed = payload.get("completion"), payload.get("per_seed")
-    if not isinstance(completion, list) or not completion:
+def read_eval_evidence(path: Path) -> EvalRecord:
+    """The ``EvalRecord`` of the eval file at ``path``; ``EvidenceError`` naming it when it cannot
+    be read or is not one."""
+    try:
+        return EvalRecord.from_json(path.read_text()[: 64 << 20])
+    except (OSError, UnicodeDecodeError, ValueError, TypeError, RecursionError) as err:
+        raise EvidenceError(f"{path}: not an evaluation record ({type(err).__name__}: {str(err)[:200]})") from None
+
+
+def check_eval(path: Path, record: EvalRecord, settings: Mapping[str, Any] | None = None,
+               run_id: str | None = None) -> None:
+    """``EvidenceError`` naming ``path`` unless its eval record agrees with itself (see the module
+    docstring), with the ``settings`` its ``suite-run.json`` names, and with ``run_id`` (when both
+    record one)."""
+    if not record.completion:
         raise EvidenceError(f"{path}: no completion curve")
-    means = [_fraction(path, f"completion[{k}]", v) for k, v in enumerate(completion)]
-    if per_seed is None:  # evaluation files always carried per_seed; one without is not evidence
-        raise EvidenceError(f"{path}: no per_seed values to check its completion against")
-    if not isinstance(per_seed, list) or not per_seed or not all(isinstance(row, list) and len(row) == len(means)
-                                                                 for row in per_seed):
+    means = [_fraction(path, f"completion[{k}]", v) for k, v in enumerate(record.completion)]
+    if not record.per_seed or not all(len(row) == len(means) for row in record.per_seed):
         raise EvidenceError(f"{path}: per_seed is not one curve of {len(means)} values per evaluation seed")
-    rows = [[_fraction(path, f"per_seed[{s}][{k}]", v) for k, v in enumerate(row)] for s, row in enumerate(per_seed)]
+    rows = [[_fraction(path, f"per_seed[{s}][{k}]", v) for k, v in enumerate(row)] for s, row in enumerate(record.per_seed)]
+    std = record.completion_std
     for k, mean in enumerate(means):
         column = [row[k] for row in rows]
         expected = sum(column) / len(column)
         if abs(expected - mean) > _TOLERANCE:
             raise EvidenceError(f"{path}: completion[{k}] is {mean:.6g} but the mean of its per_seed values is "
                                 f"{expected:.6g} (the file was edited?)")
-        std = payload.get("completion_std")
-        if isinstance(std, list) and len(std) == len(means):
+        if len(std) == len(means):
             spread = math.sqrt(sum((x - expected) ** 2 for x in column) / len(column))
-            if not isinstance(std[k], (int, float)) or abs(spread - std[k]) > 1e-6:
+            if abs(spread - std[k]) > 1e-6:
                 raise EvidenceError(f"{path}: completion_std[{k}] is {str(std[k])[:20]} but its per_seed values spread "
                                     f"{spread:.6g}")
-    success = payload.get("success")
-    if isinstance(success, list):
-        if len(success) != len(means):
-            raise EvidenceError(f"{path}: success has {len(success)} values, completion {len(means)}")
-        for k, v in enumerate(success):
-            _fraction(path, f"success[{k}]", v)
-    seeds = payload.get("seeds")
-    if isinstance(seeds, list) and len(seeds) != len(rows):
-        raise EvidenceError(f"{path}: {len(seeds)} evaluation seeds but {len(rows)} per_seed curves")
+    if record.success and len(record.success) != len(means):
+        raise EvidenceError(f"{path}: success has {len(record.success)} values, completion {len(means)}")
+    for k, v in enumerate(record.success):
+        _fraction(path, f"success[{k}]", v)
+    if len(record.seeds) != len(rows):
+        raise EvidenceError(f"{path}: {len(record.seeds)} evaluation seeds but {len(rows)} per_seed curves")
     for key, value in (settings or {}).items():
-        if key in payload and _plain(payload[key]) != _plain(value):
-            raise EvidenceError(f"{path}: {key} is {str(payload[key])[:40]}, but its suite-run.json records "
+        if key in _EVAL_FIELDS and _plain(getattr(record, key)) != _plain(value):
+            raise EvidenceError(f"{path}: {key} is {str(getattr(record, key))[:40]}, but its suite-run.json records "
                                 f"{str(value)[:40]}")
-    recorded = payload.get("run_id")
-    if run_id is not None and isinstance(recorded, str) and recorded != run_id:
-        raise EvidenceError(f"{path}: an evaluation of run {recorded[:64]}, not of this run {run_id[:64]}")
+    if run_id is not None and record.run_id is not None and record.run_id != run_id:
+        raise EvidenceError(f"{path}: an evaluation of run {record.run_id[:64]}, not of this run {run_id[:64]}")
+
+
+#: The eval record's fields a ``suite-run.json``'s settings may name.
+_EVAL_FIELDS = frozenset(f.name for f in dataclasses.fields(EvalRecord))
 
 
 def _plain(value: Any) -> Any:
@@ -203,4 +211,4 @@ def check_run(run_dir: Path, sums: Mapping[str, str] | None = None, prefix: str 
     for name, ev in record["evaluations"].items():
         path = run_dir / ev["file"]
         settings = ev.get("settings") if isinstance(ev.get("settings"), dict) else None
-        check_eval_payload(path, read_json(path), settings, identity.run_id if identity else None)
+        check_eval(path, read_eval_evidence(path), settings, identity.run_id if identity else None)

@@ -67,9 +67,9 @@ from gpl_dist.app.suite.report_runs import (
     provenance_markdown,
     shown,
 )
-from gpl_dist.app.suite.rl_jobs import plan_of_copy
-from gpl_dist.app.suite.rl_report import sample_complexity_section
-from gpl_dist.app.suite.rundata import RunHealth
+from gpl_dist.app.suite.rl.jobs import plan_of_copy
+from gpl_dist.app.suite.rl.report import sample_complexity_section
+from gpl_dist.app.suite.run_facts import RunHealth
 from gpl_dist.errors import RunDirError
 
 __all__ = ["ARCHIVE_DIR", "Cell", "PaperRow", "PaperTable", "RunResult", "build_report", "cell", "collect_results",
@@ -252,11 +252,14 @@ def build_report(runs: str | Path, out: str | Path, source: str | Path | None = 
 
 def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     """Archive the runs of ``suite_out`` into ``out/runs`` (``archive.archive_runs``), then write the
-    report from that archive (``build_report``): what ``gpl-dist suite report`` does."""
+    report from that archive (``build_report``): what ``gpl-dist suite report`` does. A missing
+    ``suite_out``, or an archive folder that is a symbolic link, fails in one line (``RunDirError``)."""
     suite_out, out = Path(suite_out), Path(out)
     if not suite_out.is_dir():
         raise RunDirError(f"no suite output at {suite_out}")
     archive = out / ARCHIVE_DIR
+    if archive.is_symlink():
+        raise RunDirError(f"{archive} is a symbolic link: the report's archive is written in place, never through one")
     archive.mkdir(parents=True, exist_ok=True)
     archive_runs(suite_out, archive)
     return build_report(archive, out, source=suite_out)

@@ -11,7 +11,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from gpl_dist.app.suite.report_data import RunFacts, RunResult
-from gpl_dist.app.suite.rundata import InstructionSwap, LearningCurve, RunHealth
+from gpl_dist.app.suite.run_facts import InstructionSwap, LearningCurve, RunHealth
 from gpl_dist.app.suite.stats import ALPHA, MeanCI, mean_ci, t_two_sided_p
 from learner.evaluate import SWAP_RULE
 

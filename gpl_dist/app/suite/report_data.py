@@ -3,7 +3,8 @@ and the suite file's copy. The sections (``report_paper``, ``report_own``, ``rep
 ``report_controls``) build their rows from what this module returns, with no I/O of their own.
 
 - ``collect_results``: every evaluation recorded under ``<entry>/seed<k>/suite-run.json``, as
-  ``RunResult`` (the numbers of its ``eval*.json``), once the folder's evidence has been checked;
+  ``RunResult`` (the numbers of its ``eval*.json``, read as ``learner.evaluate.EvalRecord``), once
+  the folder's evidence has been checked;
 - ``read_facts``: per run, its ``RunSetup`` (domain, rounds and splits from its ``config.yaml``,
   read without importing a plug-in), health, budget, learning curve and instruction-swap control;
 - ``read_plan``: the suite file's copy (``OUT/suite.yaml``, written by ``suite run``): each entry's
@@ -21,7 +22,8 @@ from pathlib import Path
 
 from gpl_dist.app.suite.archive import check_archive
 from gpl_dist.app.suite.evidence import read_json, sha256_file
-from gpl_dist.app.suite.rundata import (
+from gpl_dist.app.suite.one_run import RECORD_VERSION
+from gpl_dist.app.suite.run_facts import (
     InstructionSwap,
     LearningCurve,
     RunBudget,
@@ -33,12 +35,12 @@ from gpl_dist.app.suite.rundata import (
     run_health,
     run_setup,
 )
-from gpl_dist.app.suite.runs import RECORD_VERSION
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
 from gpl_dist.app.suite.stats import MeanCI, mean_ci
 from gpl_dist.config import ConfigError, bounded_repr, load_yaml_text
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import LATEST
+from learner.evaluate import CorrectionEffort, read_eval
 
 
 @dataclass(frozen=True)
@@ -57,10 +59,10 @@ class RunResult:
     commits: tuple[str, ...]
     train_seconds: float
     eval_seconds: float
-    effort: dict | None = None
-    """The evaluation's ``correction_effort`` (``learner.evaluate.CorrectionEffort``), None in older files."""
+    effort: CorrectionEffort | None = None
+    """What the corrections cost (the eval record's ``correction_effort``); None where not recorded."""
     success: tuple[float, ...] = ()
-    """Fraction of tasks solved after k corrections (over the evaluation's seeds); () in older files."""
+    """Fraction of tasks solved after k corrections (over the evaluation's seeds); () where not recorded."""
     numerics: tuple[str, ...] = ()
     """The numerics fingerprints (``learner.cpu.numerics_fingerprint``) of the machines that trained
     it; () for a run trained before they were recorded."""
@@ -112,14 +114,14 @@ def collect_results(suite_out: str | Path, log=print) -> list[RunResult]:
                               f"reads version {RECORD_VERSION}")
         run_dir = record_path.parent
         for name, ev in record.get("evaluations", {}).items():
-            payload = read_json(run_dir / ev["file"])
+            evaluation = read_eval(run_dir / ev["file"])
             recorded = {**EVAL_DEFAULTS, **ev["settings"]}  # a setting added later: its default
             settings = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in recorded.items()))
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
-                                     tuple(float(x) for x in payload["completion"]), run_dir / ev["file"], settings,
+                                     tuple(float(x) for x in evaluation.completion), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),
-                                     float(ev.get("seconds", 0.0)), payload.get("correction_effort"),
-                                     tuple(float(x) for x in payload.get("success") or ()),
+                                     float(ev.get("seconds", 0.0)), evaluation.correction_effort,
+                                     tuple(float(x) for x in evaluation.success),
                                      tuple(record.get("numerics", ()))))
     _check_same_settings(results)
     return results

@@ -14,7 +14,7 @@ from typing import Any
 
 from gpl_dist.app.suite.report_data import RunResult, SuitePlan, cell, status
 from gpl_dist.app.suite.report_plots import PlotRow
-from gpl_dist.app.suite.rundata import RunSetup
+from gpl_dist.app.suite.run_facts import RunSetup
 from gpl_dist.app.suite.stats import welch
 
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gpl_dist.app.suite.report_data import Cell
-from gpl_dist.app.suite.rundata import LearningCurve
+from gpl_dist.app.suite.run_facts import LearningCurve
 from gpl_dist.atomic import savefig_atomic
 
 

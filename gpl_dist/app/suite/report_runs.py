@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from gpl_dist.app.suite.report_data import RunResult
-from gpl_dist.app.suite.rundata import RunBudget, RunHealth
+from gpl_dist.app.suite.run_facts import RunBudget, RunHealth
 
 
 def shown(run_dir: Path, report_dir: Path) -> Path:
@@ -78,7 +78,7 @@ def effort_markdown(results: Sequence[RunResult], evaluation: str = "test") -> s
         mine = [r for r in results if r.entry == entry and r.evaluation == evaluation and r.effort]
         cells = []
         for key, _ in _EFFORT:
-            values = [r.effort[key] for r in mine if r.effort and r.effort.get(key) is not None]  # type: ignore[index]
+            values = [getattr(r.effort, key) for r in mine if getattr(r.effort, key) is not None]
             cells.append(f"{statistics.fmean(values):.3f}" if values else "—")
         seeds = str(len(mine)) if mine else "none: evaluated before the effort was recorded (`gpl-dist eval` again)"
         lines.append(f"| {entry} | " + " | ".join(cells) + f" | {seeds} |")

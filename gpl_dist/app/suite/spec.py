@@ -36,7 +36,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from gpl_dist.app.suite.rl_plan import parse_rl_plan
+from gpl_dist.app.suite.rl.plan import parse_rl_plan
 from gpl_dist.atomic import write_atomic
 from gpl_dist.config import (
     ConfigError,
@@ -96,7 +96,7 @@ class Suite:
     evaluations: Mapping[str, Evaluation]
     entries: tuple[Entry, ...]
     rl: Any = None
-    """The ``rl`` section (``gpl_dist.app.suite.rl_plan.RLPlan``): RL per test task against GPL and GPR; None when absent."""
+    """The ``rl`` section (``gpl_dist.app.suite.rl.plan.RLPlan``): RL per test task against GPL and GPR; None when absent."""
     plugins: str = "own"
     """Whether its configs' domain modules are imported (``gpl_dist.config.PLUGIN_POLICIES``): ``none`` to read only."""
     reference: str | None = None

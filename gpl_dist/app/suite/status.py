@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 from gpl_dist.app.suite.cost import hours, predict
 from gpl_dist.app.suite.evidence import EvidenceError
-from gpl_dist.app.suite.runs import machine_numerics, run_state, trained_as_here
+from gpl_dist.app.suite.one_run import machine_numerics, run_state, trained_as_here
 from gpl_dist.app.suite.schedule import local_plan
 from gpl_dist.app.suite.spec import Suite, plan
 from learner.cpu import machine_summary
@@ -25,6 +25,14 @@ class SuiteStatus:
 
     lines: tuple[str, ...]
     refused: int
+
+    @property
+    def error(self) -> str | None:
+        """The one error line when runs were refused; None when none was."""
+        if not self.refused:
+            return None
+        return (f"{self.refused} run(s) refused: their evidence fails its checksums or its own consistency (named "
+                "above); restore them again from the archive, or remove them to train them anew")
 
 
 def suite_status(suite: Suite, suite_file: str, out: str, only: tuple[str, ...] = (), seeds: tuple[int, ...] = (),
@@ -56,8 +64,8 @@ def suite_status(suite: Suite, suite_file: str, out: str, only: tuple[str, ...] 
         lines.append((run, f"{state:8s} {run.entry.name} seed {run.seed}  ({run.run_dir}{held})"))
     rl_left: list = []
     if suite.rl is not None:
-        from gpl_dist.app.suite.rl_jobs import NotTrainedYet, attempts_current, is_current, trained_fingerprint
-        from gpl_dist.app.suite.rl_plan import attempts_jobs, rl_jobs
+        from gpl_dist.app.suite.rl.jobs import NotTrainedYet, attempts_current, is_current, trained_fingerprint
+        from gpl_dist.app.suite.rl.plan import attempts_jobs, rl_jobs
 
         rl_plan, jobs, points = suite.rl, rl_jobs(suite.rl), attempts_jobs(suite.rl)
 

@@ -6,8 +6,9 @@ The direct check is to tell each task another task's instruction
 (``learner.evaluate.swapped_instructions``) and compare completion with the completion the same
 weights reach with their own instructions, on the same tasks with the same seed: a policy blind to
 its instruction scores the same. Measured with the learning curve's settings
-(``curves.CurveSettings``: ``CURVE_TASKS`` valid tasks spread evenly, one evaluation seed, 5
-corrections, the run's own valid split) on the run's final weights, and written into the run dir as ``SWAP_FILE``, which the
+(``records.CurveSettings``: ``CURVE_TASKS`` valid tasks spread evenly, one evaluation seed, 5
+corrections, the run's own valid split) on the run's final weights, and written into the run dir as
+``SWAP_FILE`` (a ``records.SwapRecord``), which the
 archive keeps and the report tabulates. Runs whose variant reads no instruction, and runs not
 evaluated yet (still training), are skipped; a file of the same settings, partner rule and weights
 (their SHA-256) is not computed again, and the report leaves out a file whose weights are not the
@@ -16,14 +17,12 @@ run's.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-from gpl_dist.app.suite.curves import CurveSettings, curve_tasks, suite_run_dirs
+from gpl_dist.app.suite.curves import curve_tasks, suite_run_dirs
 from gpl_dist.app.suite.evidence import read_json, sha256_file
-from gpl_dist.app.suite.rundata import SWAP_FILE
+from gpl_dist.app.suite.records import SWAP_FILE, CurveSettings, Measured, SwapRecord, read_swap
 from gpl_dist.atomic import write_atomic
-from gpl_dist.errors import RunDirError
 from gpl_dist.variants import READS_INSTRUCTION
 from learner.checkpoint import LATEST
 from learner.evaluate import SWAP_RULE, evaluate_policy, load_trained_policy
@@ -33,7 +32,9 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
     """Write ``run_dir/SWAP_FILE``: completion with the tasks' own instructions and with swapped
     ones, on the run's valid split (``settings.split`` is replaced by it); None for a run whose
     variant reads no instruction, whose training split has no valid split, or that is not
-    evaluated yet (its ``suite-run.json`` records no evaluation: it may still be training)."""
+    evaluated yet (its ``suite-run.json`` records no evaluation: it may still be training). A file
+    measured with the same settings and partner rule on the same weights is kept; one that is no
+    ``SwapRecord`` fails in one line naming it."""
     run_dir = Path(run_dir)
     ckpt = run_dir / "checkpoints" / LATEST
     if not ckpt.is_file() or not read_json(run_dir / "suite-run.json").get("evaluations"):
@@ -47,23 +48,19 @@ def compute_swap(run_dir: str | Path, settings: CurveSettings = CurveSettings(),
         log(f"{run_dir}: trained on '{cfg.env.train_split}', which has no valid split: no instruction-swap control")
         return None
     settings = resolved
-    key = {"settings": settings.to_dict(), "rule": SWAP_RULE, "round": round_index, "weights_sha256": sha256_file(ckpt)}
-    if path.is_file():
-        try:
-            old = json.loads(path.read_text())
-        except (OSError, json.JSONDecodeError) as err:
-            raise RunDirError(f"cannot read {path} ({type(err).__name__}: {err}); delete it to recompute") from None
-        if isinstance(old, dict) and all(old.get(k) == v for k, v in key.items()):
-            return path
+    weights = sha256_file(ckpt)
+    if path.is_file() and read_swap(path).measures(settings, SWAP_RULE, round_index, weights):
+        return path
     tasks = curve_tasks(cfg.env.domain, settings)
     measured = {}
     for told, swap in (("own", False), ("swapped", True)):
         result = evaluate_policy(cfg, model, num_corrections=settings.num_corrections, seeds=settings.seeds,
                                  split=settings.split, tasks=tasks, swap_instructions=swap)
-        measured[told] = {"completion": result.completion, "success": result.success}
-    payload = {**key, "variant": cfg.model.variant, "num_tasks": len(tasks), **measured}
-    write_atomic(path, json.dumps(payload, indent=1).encode())
-    own, swapped = measured["own"]["completion"], measured["swapped"]["completion"]
+        measured[told] = Measured(tuple(result.completion), tuple(result.success))
+    record = SwapRecord(settings, SWAP_RULE, round_index, weights, cfg.model.variant, len(tasks),
+                        measured["own"], measured["swapped"])
+    write_atomic(path, record.to_json())
+    own, swapped = record.own.completion, record.swapped.completion
     log(f"{run_dir}: valid completion after the last attempt {own[-1]:.3f} with its own instructions, "
         f"{swapped[-1]:.3f} told another task's (first attempt {own[0]:.3f}, {swapped[0]:.3f})")
     return path

@@ -1,7 +1,7 @@
 """A suite file's ``rl`` section: the sample-complexity comparison's plan (``RLPlan``) and its jobs.
 
-RL per test task (``learner.rl``) against GPL and GPR; ``gpl_dist.app.suite.rl_jobs`` runs the
-jobs and ``gpl_dist.app.suite.rl_report`` draws the figure.
+RL per test task (``gpl_dist.app.suite.rl.per_task``) against GPL and GPR; ``gpl_dist.app.suite.rl.jobs`` runs the
+jobs and ``gpl_dist.app.suite.rl.report`` draws the figure.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from gpl_dist.app.suite.rl.per_task import RL_METHODS, RLJob
 from gpl_dist.config import ConfigError
 from gpl_dist.domains import get_domain, is_loaded
 from learner.ppo import PPOSettings
-from learner.rl import RL_METHODS, RLJob
 
 #: Attempts drawn for GPL and GPR (the paper's figure: completion after k attempts at k trajectories).
 ATTEMPTS = 6

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gpl_dist.app.suite.runs import code_commit, execute, run_state
+from gpl_dist.app.suite.one_run import execute, run_state
+from gpl_dist.app.suite.provenance import code_commit
 from gpl_dist.app.suite.spec import Suite, SuiteRun, keep_copy, plan
 from gpl_dist.config import ConfigError
 

@@ -19,6 +19,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from gpl_dist.app.suite.records import CURVE_FILE, SWAP_FILE, read_curve, read_swap
 from gpl_dist.config import load_config
 from gpl_dist.corrections import CONSTANT_KINDS
 from gpl_dist.domains import is_loaded
@@ -28,10 +29,6 @@ from learner.checkpoint import LATEST, load_checkpoint
 from learner.driver import RoundMetrics
 from learner.health import EncoderHealth
 
-#: The file the suite's per-round valid evaluation writes into a run dir.
-CURVE_FILE = "curve-valid.json"
-#: A run's instruction-swap control on the valid split (``gpl_dist.app.suite.swap``).
-SWAP_FILE = "instruction-swap-valid.json"
 #: Entries of a state dict that are not trained parameters (BatchNorm's running statistics).
 _NOT_PARAMETERS = ("running_mean", "running_var", "num_batches_tracked")
 
@@ -150,17 +147,14 @@ class InstructionSwap:
 
 
 def instruction_swap(run_dir: Path) -> InstructionSwap | None:
-    """``InstructionSwap`` of one run dir; None when it has no ``SWAP_FILE``."""
+    """``InstructionSwap`` of one run dir (its ``SWAP_FILE``, ``records.SwapRecord``); None when it has none."""
     path = run_dir / SWAP_FILE
     if not path.is_file():
         return None
-    try:
-        payload = json.loads(path.read_text())
-        return InstructionSwap(tuple(float(x) for x in payload["own"]["completion"]),
-                               tuple(float(x) for x in payload["swapped"]["completion"]),
-                               str(payload["settings"]["split"]), str(payload["rule"]), str(payload["weights_sha256"]))
-    except (ValueError, KeyError, TypeError) as err:
-        raise RunDirError(f"{path}: not an instruction-swap record ({type(err).__name__}: {err})") from None
+    record = read_swap(path)
+    return InstructionSwap(tuple(float(x) for x in record.own.completion),
+                           tuple(float(x) for x in record.swapped.completion),
+                           record.settings.split, record.rule, record.weights_sha256)
 
 
 def read_metrics(run_dir: Path) -> list[RoundMetrics]:
@@ -275,13 +269,10 @@ def learning_curve(run_dir: Path, setup: RunSetup | None = None) -> LearningCurv
     off_split = ""
     path = run_dir / CURVE_FILE
     if path.is_file():
-        try:
-            payload = json.loads(path.read_text())
-            valid_rounds = tuple(int(r) for r in payload["rounds"])
-            valid = tuple(tuple(float(x) for x in c) for c in payload["completion"])
-            measured = str((payload.get("settings") or {}).get("split", "?"))  # "?": a file from before settings
-        except (ValueError, KeyError, TypeError) as err:
-            raise RunDirError(f"{path}: not a learning curve ({type(err).__name__}: {err})") from None
+        record = read_curve(path)
+        valid_rounds = tuple(record.rounds)
+        valid = tuple(tuple(float(x) for x in c) for c in record.completion)
+        measured = record.settings.split
         setup = setup or run_setup(run_dir)
         if measured != (setup.valid_split if setup.known else measured):
             valid, valid_rounds, off_split = (), (), measured

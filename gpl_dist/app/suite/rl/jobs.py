@@ -1,11 +1,11 @@
-"""The paper's sample-complexity comparison: RL per test task (``learner.rl``) against GPL and GPR,
+"""The paper's sample-complexity comparison: RL per test task (``gpl_dist.app.suite.rl.per_task``) against GPL and GPR,
 which solve a new task within a handful of attempts.
 
 A suite file's ``rl`` section names the test tasks of each domain (the same for every method),
 the seeds, the budget of trajectories per task, the instruction-only entry each domain's
 ``rl-finetune`` starts from, and the entries (GPL, GPR) drawn as points. ``gpl-dist suite rl``
 runs every (method, domain, task, seed) not yet done, one after another or as Ray tasks
-(``gpl_dist.app.suite.rl_cluster.run_rl_on_ray``), and writes each result as it finishes:
+(``gpl_dist.app.suite.rl.cluster.run_rl_on_ray``), and writes each result as it finishes:
 
 - ``OUT/rl/<method>/<domain>/task<t>-seed<s>.json``: an ``RLCurve`` (every trajectory's completion);
 - ``OUT/rl/attempts/<entry>-seed<s>.json``: each RL task's completion after attempts 1..6 of the
@@ -14,7 +14,7 @@ runs every (method, domain, task, seed) not yet done, one after another or as Ra
 A result made from a trained policy (``rl-finetune``'s start, the attempts) records that policy's
 ``policy_fingerprint``; once the entry is trained again, its results are redone. A killed run loses
 only the jobs in flight; running it again does the rest. The report
-(``gpl_dist.app.suite.rl_report``) draws the figure from these files, from those of the suite's ``rl``
+(``gpl_dist.app.suite.rl.report``) draws the figure from these files, from those of the suite's ``rl``
 section as it stands only (``load_results``): results of an earlier task list, budget or PPO
 settings stay on disk, are counted as left out and never mix into the medians.
 """
@@ -27,14 +27,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from gpl_dist.app.suite.rl_plan import ATTEMPTS, AttemptsJob, RLPlan, attempts_jobs, parse_rl_plan, rl_jobs
-from gpl_dist.app.suite.runs import code_commit
+from gpl_dist.app.suite.provenance import code_commit
+from gpl_dist.app.suite.rl.per_task import RLCurve, RLJob, made_with, run_rl_job
+from gpl_dist.app.suite.rl.plan import ATTEMPTS, AttemptsJob, RLPlan, attempts_jobs, parse_rl_plan, rl_jobs
 from gpl_dist.config import ConfigError, ModelConfig, load_config, load_yaml_text
 from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import state_dict_to_numpy
 from learner.checkpoint import rounds_trained
 from learner.evaluate import load_trained_policy, meta_test_rollout
-from learner.rl import RLCurve, RLJob, made_with, run_rl_job
 
 
 def result_path(out: str | Path, key: str) -> Path:
@@ -202,7 +202,7 @@ def run_rl_plan(plan: RLPlan, out: str | Path, *, address: str | None = None, se
             weights, model = (dict(start.weights), start.model) if start else (None, None)
             finished(job, run_rl_job(job, settings[job.domain], weights, model))
     elif jobs:
-        from gpl_dist.app.suite.rl_cluster import run_rl_on_ray
+        from gpl_dist.app.suite.rl.cluster import run_rl_on_ray
 
         run_rl_on_ray(jobs, settings, pretrained, address, finished, log)
     return ran + len(jobs)
@@ -234,7 +234,7 @@ def _of_plan(data: dict, key: str, plan: RLPlan, wanted: Mapping[str, Any]) -> b
 
 
 def load_results(out: str | Path, plan: RLPlan | None = None) -> tuple[list, list[dict], dict[str, int], list[str]]:
-    """Every RL curve (``learner.rl.RLCurve``) and every attempts result under ``OUT/rl`` (with a
+    """Every RL curve (``gpl_dist.app.suite.rl.per_task.RLCurve``) and every attempts result under ``OUT/rl`` (with a
     ``plan``, only those of its jobs made with its settings), how many of them each code commit made
     (``unknown`` for results without one), and the keys of the results left out."""
 

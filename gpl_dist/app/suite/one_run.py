@@ -5,46 +5,27 @@ execution (train, or resume, then evaluate), the same serially and inside a Ray 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import os
-import subprocess
 import time
 from pathlib import Path
 
-from gpl_dist.app.suite.curves import CURVE_TASKS, CurveSettings, compute_curve
+from gpl_dist.app.suite.curves import compute_curve
 from gpl_dist.app.suite.evidence import CHECKSUMS, check_run
+from gpl_dist.app.suite.provenance import code_commit
+from gpl_dist.app.suite.records import CURVE_TASKS, CurveSettings
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
 from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
 from learner.cpu import numerics_fingerprint
 from learner.driver import run_training
-from learner.evaluate import evaluate_run
+from learner.evaluate import evaluate_run, plot
 from learner.trainer import resolve_device, threads_per_learner
 from storage.lease import Lease
 
 #: What ``suite-run.json`` and the report agree on; raise it when the record's meaning changes.
 RECORD_VERSION = 1
-
-
-@functools.cache
-def code_commit() -> str:
-    """The git commit of the code this process runs, read once, when first asked (``run_suite``
-    asks before any run: a commit made while a suite runs does not relabel its runs), with
-    ``+dirty`` when tracked files differ; ``$GPL_DIST_COMMIT`` where the code came without its
-    ``.git`` (a Ray job's upload); else ``unknown``."""
-    if os.environ.get("GPL_DIST_COMMIT"):
-        return os.environ["GPL_DIST_COMMIT"][:64]
-    here = Path(__file__).resolve().parent
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here, capture_output=True, text=True,
-                              timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return head + ("+dirty" if dirty else "")
 
 
 def read_record(run_dir: Path) -> dict | None:
@@ -168,8 +149,8 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
 
 
 def _evaluate(run: SuiteRun, suite: Suite, names: list[str], log, commit: str, record: dict) -> dict:
-    """Write each of ``names`` (the run's evaluations not yet done) and record it; read the record
-    again first (under the lease): another suite run may have written some meanwhile."""
+    """Write each of ``names`` (the run's evaluations not yet done), its file and its plot, and record
+    it; read the record again first (under the lease): another suite run may have written some meanwhile."""
     record = read_record(run.run_dir) or record
     for name in names:
         if name in record["evaluations"]:
@@ -178,8 +159,9 @@ def _evaluate(run: SuiteRun, suite: Suite, names: list[str], log, commit: str, r
         ev = evaluation.config
         log(f"[{run.entry.name} seed {run.seed}] evaluation '{name}'")
         t0 = time.perf_counter()
-        _, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
-                               max_tasks=ev.max_tasks, greedy=ev.greedy_actions, phrasings=ev.phrasings)
+        evaluated, path = evaluate_run(run.run_dir, num_corrections=ev.num_corrections, seeds=ev.seeds, split=ev.split,
+                                       max_tasks=ev.max_tasks, greedy=ev.greedy_actions, phrasings=ev.phrasings)
+        plot(evaluated, path.with_suffix(".png"))
         record["evaluations"][name] = {"file": path.name, "seconds": time.perf_counter() - t0,
                                        "commit": commit, "settings": evaluation.settings()}
         _write_record(run.run_dir, record)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import ray
 
+from gpl_dist.app.suite.rl.per_task import run_rl_job
 from gpl_dist.errors import SuiteError
-from learner.rl import run_rl_job
 from workers.ray_collector import init_ray
 
 
@@ -20,7 +20,7 @@ def _rl_task(job, settings, weights, model):
 def run_rl_on_ray(jobs: list, settings: dict, pretrained: dict, address: str | None, on_done, log=print) -> None:
     """Every RL job as a Ray task of 1 CPU (local Ray unless ``address``); ``on_done(job, curve)``
     as each finishes. ``settings``: domain -> ``learner.ppo.PPOSettings``. ``pretrained``: domain ->
-    ``gpl_dist.app.suite.rl_jobs.Pretrained`` for ``rl-finetune`` (its weights put in the object store
+    ``gpl_dist.app.suite.rl.jobs.Pretrained`` for ``rl-finetune`` (its weights put in the object store
     once). Raises after all ended if any failed."""
     owned = init_ray(address, num_workers=1)
     try:

@@ -1,5 +1,5 @@
 """The report's sample-complexity section: RL curves per method against GPL's and GPR's attempts,
-as a table and a figure, from the results ``rl_jobs.load_results`` reads.
+as a table and a figure, from the results ``jobs.load_results`` reads.
 """
 
 from __future__ import annotations
@@ -7,10 +7,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from gpl_dist.app.suite.rl_jobs import load_results
-from gpl_dist.app.suite.rl_plan import AttemptsJob, RLPlan, attempts_jobs, rl_jobs
+from gpl_dist.app.suite.rl.jobs import load_results
+from gpl_dist.app.suite.rl.per_task import RL_METHODS, log_points, summarize
+from gpl_dist.app.suite.rl.plan import AttemptsJob, RLPlan, attempts_jobs, rl_jobs
 from gpl_dist.atomic import savefig_atomic
-from learner.rl import RL_METHODS, log_points, summarize
 
 
 def sample_complexity_section(suite_out: str | Path, out: str | Path, read_from: str | Path | None = None,
