@@ -227,6 +227,21 @@ class BatchExpert(Expert, Protocol):
         ...
 
 
+class BatchStepEnv(Protocol):
+    """An env class whose ``step_batch`` steps many of its instances at once; the rollout loop
+    steps a batch's envs with it when they are all of that class (unwrapped) and their labels need
+    no per-env call (no expert, or a ``BatchExpert``)."""
+
+    @classmethod
+    def step_batch(cls, envs: Sequence[Any], actions: np.ndarray, out: np.ndarray,
+                   with_info: bool) -> tuple[np.ndarray, list[dict] | None]:
+        """``envs[i].step(actions[i])`` for every ``i``, with the same results bit for bit: the
+        observations written into ``out`` ``(n, *obs_shape)``, the rewards returned as float64
+        ``(n,)``, and each env's info when ``with_info`` (else None). Raises before stepping any
+        env on a bad action; a failure after that is the whole batch's."""
+        ...
+
+
 @runtime_checkable
 class CorrectionOracle(Protocol):
     """Generates the correction for the attempt that just ended in ``env``."""

@@ -399,3 +399,62 @@ def test_ppo_expert_benchmark_runs_the_authors_settings_on_sb3():
     assert first["iterations"] == 2 and first["finished_at"] is None
     assert 0.0 <= first["completion"] <= 1.0 and first["seconds"] > 0.0
     assert first["completion"] == again["completion"]  # deterministic for a seed
+
+
+def test_step_batch_is_step_bit_for_bit_and_checks_actions_before_stepping():
+    """``RelocationEnv.step_batch`` gives each env what its own ``step`` gives: observations,
+    rewards (dense and sparse), infos and the env's state after, over whole episodes; a bad action
+    anywhere in the batch is refused before any env steps."""
+    rng = np.random.default_rng(0)
+    for reward_mode in ("dense", "sparse"):
+        alone = [RelocationEnv(t, reward_mode=reward_mode) for t in (0, 5, 9, 11)]
+        together = [RelocationEnv(t, reward_mode=reward_mode) for t in (0, 5, 9, 11)]
+        for i, (a, b) in enumerate(zip(alone, together)):
+            a.reset(seed=i)
+            b.reset(seed=i)
+        out = np.empty((4, 28), np.float32)
+        for t in range(DOMAIN.steps_per_attempt):
+            actions = rng.integers(0, 4, 4)
+            results = [env.step(int(x)) for env, x in zip(alone, actions)]
+            rewards, infos = RelocationEnv.step_batch(together, actions, out, with_info=t % 50 == 49)
+            assert np.array_equal(out, np.stack([r[0] for r in results]))
+            assert rewards.tolist() == [r[1] for r in results]
+            if infos is not None:
+                assert infos == [r[4] for r in results]
+        for a, b in zip(alone, together):
+            assert np.array_equal(a.data.qpos, b.data.qpos) and np.array_equal(a.data.qvel, b.data.qvel)
+            assert (a.steps, a.reached) == (b.steps, b.reached)
+    before = [env.data.qpos.copy() for env in together]
+    with pytest.raises(ValueError, match="action must be in 0..3, got 4"):
+        RelocationEnv.step_batch(together, np.array([0, 1, 4, 2]), out, with_info=False)
+    assert all(np.array_equal(q, env.data.qpos) for q, env in zip(before, together))
+
+
+@pytest.mark.parametrize("expert", ["learned", None])
+def test_a_rollout_steps_relocation_envs_together_with_the_same_attempts(monkeypatch, expert):
+    """Collection (the learned expert's batched labels) and evaluation (no expert) step a unit's
+    relocation envs with one ``step_batch`` call a step; every attempt is the one the per-env
+    path gives: observations, actions, labels and their distributions, rewards, completion."""
+    from gpl_dist.models.build import build_model
+    from workers.rollout import Rollout, batch_stepper
+
+    d = get_domain("relocation")
+    policy = build_model(d, "gpl", seed=0, policy_batchnorm=True).eval()
+    oracle = make_corrector("relocation", "default")
+
+    def attempts():
+        rollout = Rollout(d, policy, oracle, None if expert is None else d.experts[expert](), end_aligned=True)
+        return rollout.run((3, 8, 21), num_corrections=2, seed=4).attempts
+
+    assert batch_stepper([RelocationEnv(3), RelocationEnv(8)]) is not None
+    together = attempts()
+    monkeypatch.delattr(RelocationEnv, "step_batch")  # the per-env path: one env.step a call
+    alone = attempts()
+    assert len(together) == len(alone) >= 4
+    for a, b in zip(together, alone):
+        assert (a.task_id, a.attempt_index, a.completion, a.success, a.correction, a.reward_sum) == (
+            b.task_id, b.attempt_index, b.completion, b.success, b.correction, b.reward_sum)
+        for field in ("observations", "actions", "expert_actions"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), field
+        if expert is not None:
+            assert np.array_equal(a.expert_probs, b.expert_probs)

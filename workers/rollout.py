@@ -56,6 +56,15 @@ def _completion(info: dict, task_id: int, attempt: int) -> float:
                             "fraction in [0, 1] (gpl-dist check-domain names every such problem)")
     return completion
 
+def batch_stepper(envs: Sequence[Any]) -> Callable[..., tuple[np.ndarray, list[dict] | None]] | None:
+    """The ``step_batch`` of ``envs``' class (``gpl_dist.roles.BatchStepEnv``) when they are all
+    of one class that has it (a wrapped env is not: its wrappers would be skipped); else None."""
+    kinds = {type(env) for env in envs}
+    if len(kinds) != 1:
+        return None
+    return getattr(kinds.pop(), "step_batch", None)
+
+
 class TaskFailure(RuntimeError):
     """An env, expert or correction source raised for one task; carries the task id and stage."""
 
@@ -250,6 +259,7 @@ class Rollout:
         labels = [-1] * m
         zero_probs = np.zeros(self.domain.num_actions, dtype=np.float32)
         probs = [zero_probs] * m
+        stepper = None if per_env_labels else batch_stepper(envs)
         for t in range(steps):
             with torch.inference_mode():
                 logits = self.policy.action_logits(torch.from_numpy(buffers.obs[:, t]), z, self._previous(buffers, t))
@@ -258,6 +268,11 @@ class Rollout:
             if batched and self._label_block(batch, active, envs, live, buffers, t):
                 alive = [not batch.failed[i] for i in active]
                 live = [j for j in range(m) if alive[j]]
+            if stepper is not None:
+                if self._step_block(stepper, batch, active, envs, live, actions, buffers, t, infos, returns):
+                    alive = [not batch.failed[i] for i in active]
+                    live = [j for j in range(m) if alive[j]]
+                continue
             step_failed = False
             for j, a in enumerate(actions.tolist()):
                 if not alive[j]:
@@ -287,6 +302,41 @@ class Rollout:
             if t + 1 < steps:
                 np.stack(last_obs, out=buffers.obs[:, t + 1])
         return infos, returns
+
+    def _step_block(self, stepper: Callable[..., tuple[np.ndarray, list[dict] | None]], batch: _Batch,
+                    active: np.ndarray, envs: list[Any], live: list[int], actions: np.ndarray,
+                    buffers: _AttemptBuffers, t: int, infos: list[dict], returns: list[float]) -> bool:
+        """Step the ``live`` envs with one ``step_batch`` call (``gpl_dist.roles.BatchStepEnv``),
+        their observations written into the attempt's buffer at ``t + 1``; rows of dead envs keep
+        their last observation, as the per-env path leaves them. When the call raises, every live
+        task fails (its label at ``t`` undone, as the per-env path does); returns whether any did."""
+        steps = buffers.obs.shape[1]
+        everyone = len(live) == len(envs)
+        if t + 1 < steps and everyone:
+            out = buffers.obs[:, t + 1]
+        else:
+            out = np.empty((len(live),) + buffers.obs.shape[2:], dtype=buffers.obs.dtype)
+        if not live:
+            return False
+        try:
+            rewards, step_infos = stepper(envs if everyone else [envs[j] for j in live],
+                                          actions if everyone else actions[live], out, t + 1 == steps)
+        except Exception as err:  # noqa: BLE001 - a batch step that raised is every live task's failure
+            for j in live:
+                buffers.labels[j, t] = -1
+                if buffers.probs is not None:
+                    buffers.probs[j, t] = 0.0
+                batch.fail(int(active[j]), "step/expert", err)
+            return True
+        if t + 1 < steps and not everyone:
+            buffers.obs[:, t + 1] = buffers.obs[:, t]
+            buffers.obs[live, t + 1] = out
+        for j, r in zip(live, rewards.tolist()):
+            returns[j] += r
+        if step_infos is not None:
+            for j, info in zip(live, step_infos):
+                infos[j] = info
+        return False
 
     def _label_block(self, batch: _Batch, active: np.ndarray, envs: list[Any], live: list[int],
                      buffers: _AttemptBuffers, t: int) -> bool:
