@@ -37,8 +37,8 @@ class Checkpoint:
         rng_state: torch and numpy global RNG states and the learner's batch generator.
         config: the resolved run config as a plain dict.
         history: per-round metrics so far.
-        run_id: the identity of the run that trained it (``learner.identity``); None in a
-            checkpoint saved before identities existed.
+        run_id: the identity of the run that trained it (``learner.identity``); None where the
+            file records none (``load_checkpoint``).
     """
 
     round_index: int
@@ -99,6 +99,13 @@ def save_checkpoint(directory: str | os.PathLike, ckpt: Checkpoint, keep_round_c
 def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     """Load a checkpoint file or the latest one in a directory (``weights_only=True``).
 
+    The one place a checkpoint of any era is read; it returns the current shape. The eras:
+
+    - one Adam state per parameter tensor, no ``run_id`` (saved before the parameters were
+      flattened): the moments are concatenated into the flat parameter's (``_flat_moments``);
+    - the flat moments, no ``run_id`` (saved before run identities): ``run_id`` None, "not recorded";
+    - the current: the flat moments and ``run_id``.
+
     Raises ``CheckpointError`` naming the file when it is missing, is not a torch file of plain
     values and tensors (a pickle of code is refused, never run), or lacks a checkpoint's fields.
     """
@@ -117,7 +124,34 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
         raise CheckpointError(f"{p} is not a gpl-dist checkpoint (holds {have})")
     if not isinstance(raw.get("run_id", ""), str):
         raise CheckpointError(f"{p} is not a gpl-dist checkpoint (its run_id is not a string)")
-    return Checkpoint(**raw)
+    return Checkpoint(**{**raw, "optimizer_state": _flat_moments(raw["optimizer_state"], raw["model_state"], p)})
+
+
+#: The persistent buffers of the models' state dicts (BatchNorm's): every other entry is a parameter.
+_BUFFERS = ("running_mean", "running_var", "num_batches_tracked")
+
+
+def _flat_moments(state: dict, model_state: dict, path: Path) -> dict:
+    """``state`` with Adam's moments over the one flat parameter (``learner.trainer.flatten_parameters``):
+    per-tensor moments (one entry per parameter, in the model's parameter order: the state dict's
+    entries less its buffers, a tensor that two modules share once) are concatenated, a parameter
+    without any (it never had a gradient) taking zeros, and ``step`` is the largest
+    step of any tensor (exact when every tensor took the same steps, as in gpl-dist's rounds).
+    Flat or empty state is returned as it is."""
+    groups = state.get("param_groups") if isinstance(state, dict) else None
+    if not groups or len(groups[0]["params"]) <= 1:
+        return state
+    params = groups[0]["params"]
+    tensors = {(t.untyped_storage().data_ptr(), t.storage_offset(), tuple(t.shape)): t
+               for k, t in model_state.items() if k.rsplit(".", 1)[-1] not in _BUFFERS}
+    sizes = [t.numel() for t in tensors.values()]
+    per = [state["state"].get(i) for i in params]
+    if len(sizes) != len(params) or any(x is not None and x["exp_avg"].numel() != n for x, n in zip(per, sizes)):
+        raise CheckpointError(f"{path}: its Adam moments do not fit its model's parameters")
+    flat = {key: torch.cat([x[key].reshape(-1) if x is not None else torch.zeros(n) for x, n in zip(per, sizes)])
+            for key in ("exp_avg", "exp_avg_sq")}
+    flat["step"] = max((x["step"] for x in per if x is not None), default=torch.tensor(0.0)).clone()
+    return {"state": {0: flat} if any(x is not None for x in per) else {}, "param_groups": [{**groups[0], "params": [0]}]}
 
 
 def check_checkpoint_run(ckpt: Checkpoint, path: str | os.PathLike, run_id: str, run_dir: str | os.PathLike) -> None:

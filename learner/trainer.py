@@ -215,23 +215,12 @@ class Learner:
                                   initargs=(threads,))
 
     def load_optimizer_state(self, state: dict) -> None:
-        """Adam's moments from a checkpoint (also one written with one entry per parameter tensor,
-        before the parameters were flattened: exact when every tensor has taken the same number
-        of steps, as they do in gpl-dist's rounds), keeping this learner's fused setting and its
-        config's learning rate (``training.learning_rate``, which a resume may change)."""
+        """Adam's moments over the flat parameter (``flatten_parameters``; a checkpoint's, as
+        ``learner.checkpoint.load_checkpoint`` gives them), keeping this learner's fused setting and
+        its config's learning rate (``training.learning_rate``, which a resume may change)."""
         # a copy: load_state_dict keeps the given tensors, so two learners loading one in-memory
         # state would update the same moments twice (a checkpoint read from disk is private anyway)
         state = copy.deepcopy(state)
-        params = state["param_groups"][0]["params"]
-        if len(params) > 1:  # per-tensor moments, in model.parameters() order: concatenate them
-            per = [state["state"].get(i) for i in params]
-            sizes = [p.numel() for p in self.model.parameters() if p.requires_grad]
-            zeros = lambda n: torch.zeros(n, device=self.device)  # noqa: E731 - a tensor that never had a gradient
-            flat = {key: torch.cat([x[key].reshape(-1) if x is not None else zeros(n) for x, n in zip(per, sizes)])
-                    for key in ("exp_avg", "exp_avg_sq")}
-            flat["step"] = max((x["step"] for x in per if x is not None), default=torch.tensor(0.0)).clone()
-            state = {"state": {0: flat} if any(x is not None for x in per) else {},
-                     "param_groups": [{**state["param_groups"][0], "params": [0]}]}
         self.optimizer.load_state_dict(state)
         for group in self.optimizer.param_groups:
             group["fused"], group["foreach"] = True, None

@@ -24,6 +24,7 @@ from storage.errors import BufferIntegrityError
 from storage.fs import Location, resolve, sha256_hex
 from storage.layout import OBS_ARRAY
 from storage.manifest import RoundManifest, ShardFile, ShardRecord, committed_rounds, load_manifest
+from storage.schema import ADDED_COLUMNS, ATTEMPTS_SCHEMA, TUPLES_SCHEMA
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,7 @@ class TrainingView:
     attempt is conditioned on, even when its own tuples fell out; ordered by ``attempt_keys``):
         attempt_keys, round_index, unit_index, task_id, attempt_index, lengths: int64 ``(A,)``;
         instruction_ids, correction_ids: int64 ``(A, L)``; completion, reward_sum float32 ``(A,)``
-        (reward_sum NaN where a shard older than schema 3 has none); success bool;
+        (NaN where not recorded); success bool;
         in_window bool ``(A,)`` (its tuples are in the view);
         context_rows int64 ``(A, Kmax)``: rows of attempts 0..k-1 of the same (round, task), in
         order, padded with -1; ``Kmax = max(1, max attempt_index)``;
@@ -112,21 +113,32 @@ def read_verified(loc: Location, f: ShardFile) -> bytes:
     return data
 
 
-def read_shard_table(loc: Location, shard: ShardRecord, role: str, columns: Sequence[str] | None = None,
-                     optional: Sequence[str] = ()) -> pa.Table:
-    """The shard's ``role`` table; ``optional`` columns are read when the shard has them (older
-    schema versions lack some)."""
+def read_shard_table(loc: Location, shard: ShardRecord, role: str, columns: Sequence[str] | None = None) -> pa.Table:
+    """The shard's ``role`` table (``columns`` of it, default all), verified, in the current schema
+    (``storage.schema``) whatever the schema version it was written with: the one place a shard of
+    an older version is read. The versions:
+
+    - 1: tuples without ``expert_probs``: read as null (every label one-hot, its ``expert_action``);
+    - 2: attempts without ``reward_sum``: read as null (not recorded; NaN in a ``TrainingView``);
+    - 3 (``SCHEMA_VERSION``): the current.
+    """
     (f,) = shard.files_of(role)
     source = pa.BufferReader(read_verified(loc, f))
-    if optional:
-        names = set(pq.read_schema(source).names)
-        columns = list(columns or []) + [c for c in optional if c in names]
-    return pq.read_table(source, columns=list(columns) if columns else None)
+    names = pq.read_schema(source).names
+    added = {c: spec for c, spec in ADDED_COLUMNS[role].items() if c not in names and (columns is None or c in columns)}
+    if not added:
+        return pq.read_table(source, columns=list(columns) if columns else None)
+    current = (ATTEMPTS_SCHEMA if role == "attempts" else TUPLES_SCHEMA).names
+    wanted = list(columns) if columns else [c for c in current if c in names or c in added]
+    table = pq.read_table(source, columns=[c for c in wanted if c not in added])
+    for c, spec in added.items():
+        table = table.add_column(wanted.index(c), spec, pa.nulls(table.num_rows, spec.type))
+    return table
 
 
-def _probs_rows(col: pa.ChunkedArray | None) -> np.ndarray | None:
+def _probs_rows(col: pa.ChunkedArray) -> np.ndarray | None:
     """float32 ``(m, A)`` from an ``expert_probs`` column; null rows are NaN; None when all null."""
-    if col is None or col.null_count == len(col):
+    if col.null_count == len(col):
         return None
     arr = col.combine_chunks()
     valid = ~arr.is_null().to_numpy(zero_copy_only=False)
@@ -165,15 +177,8 @@ def _fixed_lists(col: pa.ChunkedArray, name: str) -> np.ndarray:
 
 _ATTEMPT_COLUMNS = [
     "attempt_key", "round", "unit", "task_id", "attempt_index", "instruction_ids", "correction_ids",
-    "context_keys", "completion", "success", "length", "obs_start",
+    "context_keys", "completion", "reward_sum", "success", "length", "obs_start",
 ]
-
-
-def _with_reward_sum(table: pa.Table) -> pa.Table:
-    """An attempts table with a ``reward_sum`` column: NaN for a shard written before schema 3."""
-    if "reward_sum" in table.column_names:
-        return table
-    return table.append_column("reward_sum", pa.array(np.full(table.num_rows, np.nan), pa.float64()))
 
 
 def _assemble_probs(chunks: list[tuple[int, np.ndarray | None]], expert_actions: np.ndarray) -> np.ndarray | None:
@@ -206,8 +211,6 @@ class BufferReader:
 
     def read_table(self, role: str, rounds: Iterable[int] | None = None, columns: Sequence[str] | None = None) -> pa.Table:
         """The verified ``attempts`` or ``tuples`` table of committed ``rounds`` (default: all)."""
-        from storage.schema import ATTEMPTS_SCHEMA, TUPLES_SCHEMA
-
         schema = ATTEMPTS_SCHEMA if role == "attempts" else TUPLES_SCHEMA
         tables = []
         for r in self.committed_rounds() if rounds is None else rounds:
@@ -278,8 +281,7 @@ class BufferReader:
             if m.obs_shape is not None and not window.obs_shape:
                 window.obs_shape, window.obs_dtype = tuple(m.obs_shape), np.dtype(m.obs_dtype)
             shards = sorted(m.shards, key=lambda s: s.unit_index)
-            parts = [_with_reward_sum(read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS, optional=["reward_sum"]))
-                     for s in shards]
+            parts = [read_shard_table(loc, s, "attempts", _ATTEMPT_COLUMNS) for s in shards]
             t = pa.concat_tables(parts) if parts else None
             if t is None or t.num_rows == 0:
                 continue
@@ -456,16 +458,15 @@ class _Gather:
         contiguous = m_rows == hi - lo
         block = np.asarray(z[lo:hi])
         self.observations[pos : pos + m_rows] = block if contiguous else block[take]
-        tup = read_shard_table(self.loc, shard, "tuples", ["attempt_key", "expert_action", "action"],
-                               optional=["expert_probs"]).slice(lo, hi - lo)
+        tup = read_shard_table(self.loc, shard, "tuples", ["attempt_key", "expert_action", "action", "expert_probs"]
+                               ).slice(lo, hi - lo)
         if not contiguous:
             tup = tup.take(pa.array(take))
         if not np.array_equal(tup.column("attempt_key").to_numpy(), np.repeat(self.rows.keys[win], lengths[new_row[win]])):
             raise BufferIntegrityError(f"tuples of {shard.files_of('tuples')[0].path} disagree with its attempts table")
         self.expert_actions[pos : pos + m_rows] = tup.column("expert_action").to_numpy()
         self.actions[pos : pos + m_rows] = tup.column("action").to_numpy()
-        probs = tup.column("expert_probs") if "expert_probs" in tup.column_names else None
-        self.probs_chunks.append((pos, _probs_rows(probs)))
+        self.probs_chunks.append((pos, _probs_rows(tup.column("expert_probs"))))
         for i in win:
             j = new_row[i]
             self.trajectories[j, : self.t_len[j]] = self.observations[self.tuple_start[j] + self._times(lengths[j])]

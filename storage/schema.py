@@ -16,8 +16,8 @@ import pyarrow as pa
 from gpl_dist.records import Attempt, WorkUnit
 from storage.layout import attempt_key, committed_path
 
-# 2: tuples carry expert_probs (a version-1 shard reads as one-hot labels)
-# 3: attempts carry reward_sum (an older shard reads as NaN)
+#: The shards' schema: 2 added the tuples' ``expert_probs``, 3 the attempts' ``reward_sum``
+#: (``storage.reader.read_shard_table`` reads a shard of an older version as this one).
 SCHEMA_VERSION = 3
 
 ATTEMPTS_SCHEMA = pa.schema(
@@ -192,3 +192,8 @@ def build_unit_tables(run_id: str, unit: WorkUnit, attempts: Sequence[Attempt], 
         schema=TUPLES_SCHEMA,
     )
     return UnitTables(att, tup, observations)
+
+
+#: The columns of each table that a shard of an older schema version may lack (read as null).
+ADDED_COLUMNS = {"attempts": {"reward_sum": ATTEMPTS_SCHEMA.field("reward_sum")},
+                 "tuples": {"expert_probs": TUPLES_SCHEMA.field("expert_probs")}}

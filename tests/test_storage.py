@@ -280,17 +280,6 @@ def test_empty_units_zero_length_attempts_and_dry_run(tmp_path):
     assert BufferReader(tmp_path / "nothing").load_training_view().num_tuples == 0
 
 
-def test_an_attempts_table_from_before_schema_3_reads_its_reward_sums_as_nan():
-    import pyarrow as pa
-
-    from storage.reader import _with_reward_sum
-
-    old = pa.table({"attempt_key": [1, 2]})
-    assert np.isnan(_with_reward_sum(old).column("reward_sum").to_numpy()).all()
-    new = pa.table({"attempt_key": [1], "reward_sum": [3.5]})
-    assert _with_reward_sum(new) is new
-
-
 @pytest.mark.parametrize("commit_at", ["verify.between_listings", "commit.between_moves"])
 def test_verify_during_a_commit_reports_no_problem(tmp_path, commit_at):
     """``verify`` lists the manifests, reads every file, then lists ``data/``: a round committed in

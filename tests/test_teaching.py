@@ -330,7 +330,11 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
     assert gif.status_code == 200 and gif.content[:6] == b"GIF89a"
     check = client.post("/api/check", json={"text": "enter the gry room"}).json()
     assert check["unknown_words"] == ["gry"] and check["suggestion"] == "enter the grey room"
-    assert client.get("/api/info").json()["example_instruction"].startswith("Move ")
+    info = client.get("/api/info").json()
+    assert info["example_instruction"].startswith("Move ")
+    # the legend of the still pictures: the agent's path in the first path colour, then the ring
+    assert info["legend"] == [{"colour": "#e62828", "meaning": "the path of the agent"},
+                              {"colour": "#14c83c", "meaning": "the ring: where the task was first solved"}]
     assert client.get(f"/api/episodes/{a['episode_id']}/hint").json()["hint"]
 
 

@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 import pytest
 from _cluster_tools import GPL_DIST, free_ports, quiet_env
 
+from gpl_dist import atomic
 from gpl_dist.app.teaching import Teacher, TeachingError, write_episode_log
 from gpl_dist.cli import main
 
@@ -190,7 +191,6 @@ def test_serve_and_teach_with_out_a_file_fail_at_start_in_one_line(run, tmp_path
 def test_a_write_failure_in_serve_answers_its_reason_and_serving_goes_on(teacher, tmp_path, monkeypatch):
     from fastapi.testclient import TestClient
 
-    import gpl_dist.app.teaching as teaching
     from gpl_dist.app.teach_web import create_app
 
     out = tmp_path / "out"
@@ -220,7 +220,7 @@ def test_a_write_failure_in_serve_answers_its_reason_and_serving_goes_on(teacher
         written.append(len(data))
         return os.write(fd, bytes(data[: len(data) // 2]))
 
-    monkeypatch.setattr(teaching, "_os_write", full_disk)
+    monkeypatch.setattr(atomic, "_os_write", full_disk)
     r = client.post("/api/episodes", json={"task_id": TASK, "seed": 4})
     assert r.status_code == 507 and "No space left on device" in r.json()["detail"], r.text[:300]
     assert "\n" not in r.json()["detail"] and written

@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from torch import nn
 
 from gpl_dist.config import TrainingConfig
 from gpl_dist.domains import get_domain
@@ -54,31 +53,6 @@ def test_parameters_are_views_of_one_flat_tensor_and_train(tmp_path):
     fresh = build_model(get_domain("multiroom"))
     fresh.load_state_dict(learner.model.state_dict())
     assert all(torch.equal(a, b.cpu()) for a, b in zip(fresh.state_dict().values(), learner.model.state_dict().values()))
-
-
-def test_flat_adam_continues_a_per_tensor_adam_exactly(tmp_path):
-    """A checkpoint written before the flattening (one Adam state per tensor) resumes the same."""
-    from learner.batches import TensorView
-
-    tv = TensorView.from_view(_view(tmp_path))
-    idx = torch.randperm(tv.num_states, generator=torch.Generator().manual_seed(0))[:64]
-    obs, labels, cond, rows = tv.batch(idx)
-    model = build_model(get_domain("multiroom"), seed=0)
-    old = torch.optim.Adam(model.parameters(), lr=1e-3, fused=True)
-    for _ in range(3):
-        old.zero_grad()
-        nn.functional.cross_entropy(model(obs, cond, rows), labels).backward()
-        old.step()
-    assert len(old.state) == len(list(model.parameters()))  # every tensor has moments to carry over
-    learner = Learner(build_model(get_domain("multiroom")), _cfg())
-    learner.model.load_state_dict(model.state_dict())
-    learner.load_optimizer_state(old.state_dict())
-    old.zero_grad()
-    nn.functional.cross_entropy(model(obs, cond, rows), labels).backward()
-    old.step()
-    learner.step(tv, idx)
-    for a, b in zip(model.parameters(), learner.model.parameters()):
-        torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
 
 
 def test_training_is_deterministic(tmp_path):

@@ -230,7 +230,7 @@ def export_minari(run_dir: str | Path, buffer_root: str, out: str | Path, datase
                             "task_id": a["task_id"], "split": a["split"], "attempt_index": a["attempt_index"],
                             "round": a["round"], "unit": a["unit"], "attempt_key": a["attempt_key"], "seed": a["seed"],
                             "policy_version": a["policy_version"], "worker_id": a["worker_id"],
-                            "completion": a["completion"], "success": a["success"], "reward_sum": a.get("reward_sum"),
+                            "completion": a["completion"], "success": a["success"], "reward_sum": a["reward_sum"],
                             "instruction": a["instruction"], "instruction_ids": list(a["instruction_ids"]),
                             "corrections_before": [b["correction"] for b in before],
                             "corrections_before_ids": [list(b["correction_ids"]) for b in before],

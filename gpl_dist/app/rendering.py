@@ -23,6 +23,7 @@ from gpl_dist.atomic import write_atomic
 from gpl_dist.domains import get_domain
 from gpl_dist.errors import UsageError
 from gpl_dist.experts import make_expert
+from gpl_dist.roles import DomainSpec
 from learner.evaluate import load_trained_policy, meta_test_rollout
 
 
@@ -169,6 +170,28 @@ CAPTION_FONT_PX = 14
 #: Colours of the drawn paths (one per ``picture_points`` entry) and of the mark where the task was solved.
 PATH_RGB = ((230, 40, 40), (40, 120, 230))
 SOLVED_RGB = (20, 200, 60)
+
+
+def picture_legend(domain: DomainSpec) -> tuple[tuple[str, str], ...]:
+    """What the marks of ``still_frame`` mean for ``domain``: ``(CSS colour, meaning)`` for each
+    drawn path (named by the env's optional ``picture_point_names``, one name for each point of
+    ``picture_points()`` after a reset of task 0), then the ring where the task was first solved;
+    empty for an env without ``picture_points``, whose pictures carry no marks."""
+    env = domain.make_env(0)
+    try:
+        env.reset(seed=0)
+        points = env.picture_points() if hasattr(env, "picture_points") else ()
+        names = tuple(getattr(env, "picture_point_names", ()))
+    finally:
+        if hasattr(env, "close"):
+            env.close()
+    if not points:
+        return ()
+    css = lambda rgb: "#" + "".join(f"{c:02x}" for c in rgb)  # noqa: E731
+    paths = tuple((css(PATH_RGB[i % len(PATH_RGB)]),
+                   f"the path of {names[i] if i < len(names) else f'moving thing {i + 1}'}")
+                  for i in range(len(points)))
+    return (*paths, (css(SOLVED_RGB), "the ring: where the task was first solved"))
 
 
 def caption_lines(text: str) -> list[str]:

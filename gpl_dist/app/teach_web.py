@@ -54,6 +54,7 @@ from fastapi.middleware.trustedhost import TrustedHostMiddleware
 from fastapi.responses import HTMLResponse, JSONResponse, Response
 from pydantic import BaseModel, Field, StrictInt
 
+from gpl_dist.app.rendering import picture_legend
 from gpl_dist.app.teaching import (
     MAX_SEED,
     MAX_TEXT_CHARS,
@@ -274,6 +275,7 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
                 "examples": teacher.examples(),  # the kind (and paraphrases) this policy trained on
+                "legend": [{"colour": c, "meaning": m} for c, m in picture_legend(domain)],
                 "example_instruction": domain.instruction_of(split_tasks(domain.name, split)[0])}
 
     @app.post("/api/check", response_model=CheckView)

@@ -24,7 +24,8 @@ atomically after each attempt; ``pyarrow.dataset.dataset(log_dir)`` reads them a
 ``LOG_SCHEMA``.
 
 **Files on disk.** Every file a reader may see (a log, a GIF) is written under a temporary name,
-``_tmp-<hex>-<name>``, then renamed into place (``write_atomic``); a write that fails removes its
+``_tmp-<hex>-<name>``, then renamed into place (``write_atomic``, through
+``gpl_dist.atomic.write_atomic``); a write that fails removes its
 temporary and raises ``TeachingWriteError`` (one line: the file and the cause). Readers skip the
 names pyarrow skips, those starting with ``_`` or ``.`` (``gpl_dist.app.export.is_temporary``). A
 process writing into a teaching folder (``serve``, ``teach``) holds its ``.writers.lock`` shared
@@ -50,6 +51,7 @@ from typing import Any, Callable, Collection, Iterator, TypeVar
 import numpy as np
 import pyarrow as pa
 
+from gpl_dist import atomic
 from gpl_dist.app import rendering
 from gpl_dist.app.policy import load_policy
 from gpl_dist.app.rendering import (
@@ -672,10 +674,6 @@ TEACHING_SUBFOLDERS = ("log", "gifs")
 #: folder: a log or a GIF is written in well under a second, so an hour-old one is a dead writer's.
 LEFTOVER_AGE_S = 3600.0
 
-#: ``os.write``, named here so that a test can make the disk full (nothing else can without root).
-_os_write = os.write
-
-
 def _write_error(path: Path, err: OSError, what: str = "cannot write") -> TeachingWriteError:
     reason = err.strerror or type(err).__name__
     advice = "; free some space, then try again" if err.errno in NO_SPACE_ERRNOS else ""
@@ -702,31 +700,15 @@ def ensure_folder(path: str | Path) -> Path:
 
 
 def write_atomic(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path``: to ``_tmp-<hex>-<name>`` beside it (flushed to disk), then renamed
-    over it (``os.replace``), so a reader sees the old file or the new one, never half of one. A
-    failure removes the temporary and raises ``TeachingWriteError`` (one line, the ``errno`` kept)."""
-    path = Path(path)
-    tmp = path.with_name(f"{TMP_PREFIX}{uuid.uuid4().hex[:12]}-{path.name}")
+    """Write ``data`` to ``path`` with ``gpl_dist.atomic.write_atomic`` through a temporary named
+    ``_tmp-<hex>-<name>`` (``TMP_PREFIX``: what ``teaching_leftovers`` removes when its writer died),
+    so a reader sees the old file or the new one, never half of one. A failure removes the
+    temporary and raises ``TeachingWriteError`` (one line, the ``errno`` kept)."""
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+        return atomic.write_atomic(path, data, prefix=TMP_PREFIX)
     except OSError as err:
-        raise _write_error(path, err) from None
-    try:
-        try:
-            view = memoryview(data)
-            while view:
-                view = view[_os_write(fd, view):]
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.replace(tmp, path)
-    except BaseException as err:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(err, OSError):
-            raise _write_error(path, err) from None
-        raise
-    return path
+        advice = "; free some space, then try again" if err.errno in NO_SPACE_ERRNOS else ""
+        raise TeachingWriteError(f"{err.strerror}{advice}", err.errno) from None
 
 
 def check_out_folder(out: str | Path) -> Path:

@@ -238,6 +238,8 @@ class MultiRoomEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 10}
     domain_name = "multiroom"
+    #: what each point of ``picture_points()`` follows (the teaching page's legend)
+    picture_point_names = ("the agent",)
 
     def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense",
                  terminate_on_success: bool = False):

@@ -155,6 +155,8 @@ class RelocationEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 100}
     domain_name = "relocation"
+    #: what each point of ``picture_points()`` follows (the teaching page's legend)
+    picture_point_names = ("the gripper", "the goal block")
 
     def __init__(self, task_id: int, render_mode: str | None = None, reward_mode: str = "dense",
                  terminate_on_success: bool = False):

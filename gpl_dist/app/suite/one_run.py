@@ -29,7 +29,14 @@ RECORD_VERSION = 1
 
 
 def read_record(run_dir: Path) -> dict | None:
-    """A run's ``suite-run.json``, or None; a damaged one fails in one line naming it."""
+    """A run's ``suite-run.json`` in the current shape, or None; a damaged one fails in one line
+    naming it. The one place a record of an older shape is read; the shapes (all ``RECORD_VERSION``):
+
+    - an evaluation's ``settings`` without ``max_tasks`` and ``phrasings`` (recorded before those
+      settings existed): they read as the values it was made with (``spec.EVAL_DEFAULTS``);
+    - no ``numerics`` (trained before fingerprints were recorded): reads as none, ``[]``;
+    - the current: both.
+    """
     p = run_dir / "suite-run.json"
     if not p.is_file():
         return None
@@ -39,7 +46,11 @@ def read_record(run_dir: Path) -> dict | None:
         raise RunDirError(f"{p} is damaged ({err}): delete it to let the suite rebuild it from the run's files") from None
     if not isinstance(record, dict):
         raise RunDirError(f"{p} does not hold a JSON object: delete it to let the suite rebuild it")
-    return record
+    evaluations = record.get("evaluations")
+    for ev in evaluations.values() if isinstance(evaluations, dict) else ():
+        if isinstance(ev, dict) and isinstance(ev.get("settings"), dict):
+            ev["settings"] = {**EVAL_DEFAULTS, **ev["settings"]}
+    return {**record, "numerics": record.get("numerics", [])}
 
 
 def _write_record(run_dir: Path, record: dict) -> None:
@@ -53,7 +64,7 @@ def _started(run_dir: Path, record: dict, commit: str, numerics: str) -> None:
     (``learner.cpu.numerics_fingerprint``) before it trains: a run killed and resumed lists every
     commit and every fingerprint that trained a round of it."""
     record["commits"] = sorted(set(record["commits"]) | {commit})
-    record["numerics"] = sorted(set(record.get("numerics", [])) | {numerics})
+    record["numerics"] = sorted(set(record["numerics"]) | {numerics})
     run_dir.mkdir(parents=True, exist_ok=True)
     _write_record(run_dir, record)
 
@@ -80,7 +91,7 @@ def trained_as_here(run: SuiteRun, here: str) -> bool | None:
     """Whether every round of ``run`` was trained under ``here`` (this machine's
     ``machine_numerics`` for it), so that training it again here gives the same files, bit for bit;
     None where its record names no fingerprint (trained before they were recorded)."""
-    recorded = (read_record(run.run_dir) or {}).get("numerics")
+    recorded = (read_record(run.run_dir) or {"numerics": []})["numerics"]
     if not recorded:
         return None
     return here not in NOT_BITWISE and recorded == [here]
@@ -109,7 +120,7 @@ def run_state(run: SuiteRun, suite: Suite) -> str:
         check_run(run.run_dir)
     for name, ev in done.items():
         now = suite.evaluations[name].settings() if name in suite.evaluations else None
-        recorded = {**EVAL_DEFAULTS, **(ev.get("settings") or {})}  # a setting added later: its default
+        recorded = ev.get("settings") or {}
         if now is not None and recorded != now:  # compared as recorded: JSON lists, not tuples
             raise ConfigError(f"{run.run_dir}: evaluation '{name}' was made with other settings than the suite "
                               f"gives now ({ev.get('settings')}): use another --out, or delete {ev.get('file')} and "
@@ -129,7 +140,8 @@ def execute(run: SuiteRun, suite: Suite, *, address: str | None = None, serial: 
     if state != "done":  # the suite changes the run: it is no longer an archive's copy (checked just above)
         (run.run_dir / CHECKSUMS).unlink(missing_ok=True)
     record = read_record(run.run_dir) or {"version": RECORD_VERSION, "suite": str(suite.path), "entry": run.entry.name,
-                                          "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": []}
+                                          "seed": run.seed, "evaluations": {}, "train_seconds": 0.0, "commits": [],
+                                          "numerics": []}
     if state in ("new", "resume"):
         log(f"[{run.entry.name} seed {run.seed}] {'training' if state == 'new' else 'resuming'} into {run.run_dir}")
         _started(run.run_dir, record, commit, machine_numerics(run, suite, None if on_this_machine else address))

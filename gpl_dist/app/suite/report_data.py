@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gpl_dist.app.suite.archive import check_archive
-from gpl_dist.app.suite.evidence import read_json, sha256_file
-from gpl_dist.app.suite.one_run import RECORD_VERSION
+from gpl_dist.app.suite.evidence import sha256_file
+from gpl_dist.app.suite.one_run import RECORD_VERSION, read_record
 from gpl_dist.app.suite.run_facts import (
     InstructionSwap,
     LearningCurve,
@@ -35,7 +35,7 @@ from gpl_dist.app.suite.run_facts import (
     run_health,
     run_setup,
 )
-from gpl_dist.app.suite.spec import EVAL_DEFAULTS, check_seeds
+from gpl_dist.app.suite.spec import check_seeds
 from gpl_dist.app.suite.stats import MeanCI, mean_ci
 from gpl_dist.config import ConfigError, bounded_repr, load_yaml_text
 from gpl_dist.errors import RunDirError
@@ -108,15 +108,14 @@ def collect_results(suite_out: str | Path, log=print) -> list[RunResult]:
     check_archive(root, log)
     results = []
     for record_path in sorted(root.glob("*/seed*/suite-run.json")):
-        record = read_json(record_path)
+        record = read_record(record_path.parent) or {}
         if record.get("version") != RECORD_VERSION:
             raise RunDirError(f"{record_path} is a suite record of version {record.get('version')}; this report "
                               f"reads version {RECORD_VERSION}")
         run_dir = record_path.parent
         for name, ev in record.get("evaluations", {}).items():
             evaluation = read_eval(run_dir / ev["file"])
-            recorded = {**EVAL_DEFAULTS, **ev["settings"]}  # a setting added later: its default
-            settings = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in recorded.items()))
+            settings = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in ev["settings"].items()))
             results.append(RunResult(record["entry"], int(record["seed"]), run_dir, name,
                                      tuple(float(x) for x in evaluation.completion), run_dir / ev["file"], settings,
                                      tuple(record.get("commits", ())), float(record.get("train_seconds", 0.0)),

@@ -86,6 +86,8 @@ class BabyAIEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array", "ansi"], "render_fps": 10}
     domain_name = "babyai"
+    #: what each point of ``picture_points()`` follows (the teaching page's legend)
+    picture_point_names = ("the agent",)
 
     def __init__(self, task_id: int, render_mode: str | None = None):
         self.task_id = task_table.check_task_id(task_id)

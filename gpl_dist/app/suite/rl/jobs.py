@@ -21,6 +21,7 @@ settings stay on disk, are counted as left out and never mix into the medians.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 from dataclasses import dataclass
@@ -35,11 +36,30 @@ from gpl_dist.metrics import completion_by_attempt
 from gpl_dist.models.build import state_dict_to_numpy
 from learner.checkpoint import rounds_trained
 from learner.evaluate import load_trained_policy, meta_test_rollout
+from learner.ppo import PPOSettings
 
 
 def result_path(out: str | Path, key: str) -> Path:
     """Where a job's result lives: ``OUT/rl/<key>.json``."""
     return Path(out) / "rl" / f"{key}.json"
+
+
+#: ``PPOSettings`` fields that a curve result's settings lack when it was written before they existed:
+#: every such job ran with their defaults (SB3's own, one learning rate, one value layer).
+_FIELDS_ADDED_LATER = ("value_learning_rate", "target_kl", "max_grad_norm", "value_layers")
+
+
+def read_result(path: Path) -> dict:
+    """An RL result file (a curve's, ``RLCurve.to_json``, or an attempts set's), in the current
+    shape: the one place a result of an older shape is read. A curve's ``settings`` of the
+    results written before ``_FIELDS_ADDED_LATER`` existed lack them and read as their defaults;
+    the current ones hold every ``PPOSettings`` field. Raises what ``json.loads`` raises."""
+    data = json.loads(path.read_text())
+    settings = data.get("settings") if isinstance(data, dict) else None
+    if isinstance(settings, dict):
+        defaults = dataclasses.asdict(PPOSettings())
+        data["settings"] = {**{k: defaults[k] for k in _FIELDS_ADDED_LATER}, **settings}
+    return data
 
 
 def is_current(out: str | Path, job, settings, policy: str | None = None) -> bool:
@@ -50,7 +70,7 @@ def is_current(out: str | Path, job, settings, policy: str | None = None) -> boo
     path = result_path(out, job.key)
     if not path.is_file():
         return False
-    data = json.loads(path.read_text())
+    data = read_result(path)
     return (RLJob(**data["job"]) == job and made_with(data.get("settings"), settings)
             and data.get("policy") == policy)
 
@@ -146,7 +166,7 @@ def attempts_current(out: str | Path, job: AttemptsJob, plan: RLPlan) -> bool:
     path = result_path(out, job.key)
     if not path.is_file():
         return False
-    data = json.loads(path.read_text())
+    data = read_result(path)
     if data.get("tasks") != list(plan.tasks[job.domain]):
         return False
     try:
@@ -243,7 +263,7 @@ def load_results(out: str | Path, plan: RLPlan | None = None) -> tuple[list, lis
     curves, attempts, left_out = [], [], []
     commits: dict[str, int] = {}
     for path in sorted(root.rglob("*.json")) if root.is_dir() else []:
-        data = json.loads(path.read_text())
+        data = read_result(path)
         key = path.relative_to(root).with_suffix("").as_posix()
         if plan is not None and not _of_plan(data, key, plan, wanted):
             left_out.append(key)

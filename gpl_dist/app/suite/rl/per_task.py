@@ -109,18 +109,10 @@ class RLCurve:
                    data.get("solved_at"), data.get("settings"))
 
 
-#: ``PPOSettings`` fields that results written before they existed (before ``learner.ppo``) lack:
-#: every RL job ran with what their defaults are (SB3's own, one learning rate, one value layer).
-_FIELDS_ADDED_LATER = ("value_learning_rate", "target_kl", "max_grad_norm", "value_layers")
-
-
 def made_with(recorded: Any, settings: PPOSettings) -> bool:
-    """Whether a result's recorded settings (``RLCurve.settings``, as read from its JSON) are
-    ``settings``; a field of ``_FIELDS_ADDED_LATER`` that the record lacks counts as its default."""
-    if not isinstance(recorded, dict):
-        return False
-    defaults = dataclasses.asdict(PPOSettings())
-    return {**{k: defaults[k] for k in _FIELDS_ADDED_LATER}, **recorded} == dataclasses.asdict(settings)
+    """Whether a result's recorded settings (``RLCurve.settings``, as ``jobs.read_result`` gives
+    them) are ``settings``."""
+    return isinstance(recorded, dict) and recorded == dataclasses.asdict(settings)
 
 
 class TaskFeatures(nn.Module):
