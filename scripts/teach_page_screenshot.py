@@ -8,6 +8,13 @@ chromium::
 
     gpl-dist suite restore docs/paper-report/runs --out runs/paper
     python scripts/teach_page_screenshot.py --run-dir runs/paper/multiroom-gpl/seed0 --out docs/teach-page.png
+
+For another domain, give its task and, optionally, the corrections to type: without
+``--correction`` the first correction typed is what the run's oracle would say (its hint), and
+without ``--misspelt`` no unknown word is typed::
+
+    python scripts/teach_page_screenshot.py --run-dir runs/babyai/babyai-gpl/seed0 --task 1170 --seed 0 \
+        --correction "" --misspelt "" --out babyai-teach.png
 """
 
 from __future__ import annotations
@@ -45,6 +52,10 @@ def main() -> int:
     parser.add_argument("--out", required=True, help="the PNG to write")
     parser.add_argument("--task", type=int, default=263, help="task id (default 263, a held-out test task)")
     parser.add_argument("--seed", type=int, default=1, help="episode seed (default 1)")
+    parser.add_argument("--correction", default="enter the grey room",
+                        help="the first correction typed ('': what the run's oracle would say, its hint)")
+    parser.add_argument("--misspelt", default="enter the rd room",
+                        help="a correction with an unknown word, left typed in the box ('': none)")
     args = parser.parse_args()
     from playwright.sync_api import expect, sync_playwright
 
@@ -66,13 +77,19 @@ def main() -> int:
                 page.fill("#seed", str(args.seed))
                 page.click("#new")
                 expect(page.locator(".attempt")).to_have_count(1, timeout=120_000)
-                page.fill("#correction", "enter the grey room")
+                correction = args.correction
+                if not correction:  # the oracle's sentence, as the page's Hint shows it
+                    page.click("#hint-button")
+                    expect(page.locator("#hint")).to_contain_text("The oracle would say: ", timeout=120_000)
+                    correction = page.locator("#hint").inner_text().split("The oracle would say: ", 1)[1].strip()
+                page.fill("#correction", correction)
                 page.click("#send")
                 expect(page.locator(".attempt")).to_have_count(2, timeout=120_000)
                 page.click("#oracle-button")
                 expect(page.locator(".attempt.oracle")).to_have_count(1, timeout=120_000)
-                page.fill("#correction", "enter the rd room")  # shown highlighted, with the closest phrasing
-                expect(page.locator("#echo .unknown")).to_have_count(1, timeout=10_000)
+                if args.misspelt:  # shown highlighted, with the closest phrasing
+                    page.fill("#correction", args.misspelt)
+                    expect(page.locator("#echo .unknown")).to_have_count(1, timeout=10_000)
                 page.wait_for_function("[...document.querySelectorAll('.attempt img')].every(i => i.complete && "
                                        "i.naturalWidth > 0) && document.querySelectorAll('.loading').length === 0",
                                        timeout=120_000)

@@ -278,10 +278,18 @@ class RelocationEnv(gymnasium.Env):
     def step(self, action):
         if not 0 <= action < 4:
             raise ValueError(f"action must be in 0..3, got {action!r}")
-        cx, cy = ACTION_CTRL[action]
+        reward, dist = self._advance(action)
+        obs = self._obs
+        obs[0:9] = self._qpos
+        obs[19:28] = self._qvel
+        terminated = self.terminate_on_success and dist < SUCCESS_RADIUS
+        return obs.copy(), reward, terminated, self.steps >= EPISODE_STEPS, self._info(dist)
+
+    def _advance(self, action: int) -> tuple[float, float]:
+        """One simulator step under ``action`` (checked by the caller) and the episode's
+        bookkeeping; returns the step's reward and the goal block's distance to the target."""
         ctrl = self._ctrl
-        ctrl[0] = cx
-        ctrl[1] = cy
+        ctrl[0], ctrl[1] = ACTION_CTRL[action]
         mujoco.mj_step(self.model, self.data)
         self.steps += 1
         q = self._qpos
@@ -296,18 +304,13 @@ class RelocationEnv(gymnasium.Env):
                        + 5.0 * dist)
         else:
             reward = 0.0
-        if dist < SUCCESS_RADIUS:
-            if not self.reached:
-                self.reached = True
-                if not self._dense:
-                    reward = 1.0
+        if dist < SUCCESS_RADIUS and not self.reached:
+            self.reached = True
+            if not self._dense:
+                reward = 1.0
         if self._trail is not None:
             self._trail.append(self._trail_point())
-        obs = self._obs
-        obs[0:9] = q
-        obs[19:28] = self._qvel
-        terminated = self.terminate_on_success and dist < SUCCESS_RADIUS
-        return obs.copy(), reward, terminated, self.steps >= EPISODE_STEPS, self._info(dist)
+        return reward, dist
 
     @classmethod
     def step_batch(cls, envs: Sequence["RelocationEnv"], actions: np.ndarray, out: np.ndarray,
@@ -323,34 +326,12 @@ class RelocationEnv(gymnasium.Env):
             raise ValueError(f"action must be in 0..3, got {bad!r}")
         rewards = np.empty(len(envs))
         infos: list[dict] | None = [] if with_info else None
-        step, hypot, cos, sin = mujoco.mj_step, math.hypot, math.cos, math.sin
         for j, (env, a) in enumerate(zip(envs, acts.tolist())):
-            ctrl = env._ctrl
-            ctrl[0], ctrl[1] = ACTION_CTRL[a]
-            step(env.model, env.data)
-            env.steps += 1
-            q = env._qpos
-            bq = env._bq
-            bx = q[bq]
-            by = q[bq + 1]
-            tx, ty = env._target
-            dist = hypot(bx - tx, by - ty)
-            if env._dense:
-                th = q[2]
-                reward = -(hypot(q[0] + ARM_OFFSET * cos(th) - bx, q[1] + ARM_OFFSET * sin(th) - by) + 5.0 * dist)
-            else:
-                reward = 0.0
-            if dist < SUCCESS_RADIUS and not env.reached:
-                env.reached = True
-                if not env._dense:
-                    reward = 1.0
-            if env._trail is not None:
-                env._trail.append(env._trail_point())
+            rewards[j], dist = env._advance(a)
             row = out[j]
-            row[0:9] = q
+            row[0:9] = env._qpos
             row[9:19] = env._obs[9:19]
             row[19:28] = env._qvel
-            rewards[j] = reward
             if infos is not None:
                 infos.append(env._info(dist))
         return rewards, infos
