@@ -169,6 +169,9 @@ def _module_key(ref: str) -> tuple[str, str]:
 
 
 def _trusted() -> list[dict]:
+    """The entries of the trust file (``trust_file``): a JSON list of ``{"module", "sha256"}``, the
+    one shape it has been written in (``trust_domain_module``). A file that is missing or no JSON
+    list trusts nothing, and an entry that is no object is left out: trust is then asked for again."""
     try:
         entries = json.loads(trust_file().read_text()[: 1 << 20])
     except (OSError, ValueError):

@@ -28,6 +28,9 @@ def load_splits(domain: str) -> dict[str, tuple[int, ...]]:
 
 @lru_cache(maxsize=None)
 def _load_split_file(domain: str) -> dict[str, tuple[int, ...]]:
+    """The ``splits`` of the domain's file. The files ship with the code and are read by the code
+    they ship with (a test checks each equals its domain's ``make_splits``), so a file of another
+    shape is never read: its ``version`` counts changes of its contents and is not read."""
     path = _DIR / f"{domain}.json"
     if not path.is_file():
         raise FileNotFoundError(f"no split file for domain '{domain}' at {path}")

@@ -38,7 +38,7 @@ import os
 import time
 from collections.abc import Mapping
 from contextlib import ExitStack
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -73,9 +73,10 @@ from learner.checkpoint import (
     restore_rng,
     save_checkpoint,
 )
-from learner.health import EncoderHealth, format_health
+from learner.health import format_health
 from learner.identity import RunIdentity, create_identity, read_identity, refuse_linked_folders, resolve_identity
 from learner.parallel import make_learner
+from learner.rounds import RoundMetrics, read_round
 from learner.trainer import autocast_context, resolve_device
 from storage import BufferIntegrityError, BufferReader, commit_round, committed_rounds, recover_pending
 from storage.fs import resolve
@@ -119,66 +120,6 @@ def completion_curve(reader, round_index: int, max_attempts: int) -> list[float]
     curve = completion_by_corrections(att.column("task_id").to_numpy(), att.column("attempt_index").to_numpy(),
                                       att.column("completion").to_numpy(), max_attempts)
     return [float(x) for x in curve]
-
-
-@dataclass(frozen=True)
-class RoundMetrics:
-    """One DAgger round, as written to ``metrics.jsonl`` (one JSON line, keys as below except
-    ``round_index``, written ``round``) and kept in the checkpoint's history.
-
-    Attributes:
-        round_index: the round.
-        collected_tuples: labelled states collected; None when the round was committed before a
-            restart and not collected again.
-        failed_tasks: tasks dropped because their env, expert or oracle raised.
-        collection_seconds: wall time of collection and commit.
-        load_seconds: wall time of loading the training view.
-        completion_by_corrections: mean completion on the round's training tasks after 0..K corrections.
-        buffer_tuples: labelled states in the training view.
-        loss: cross-entropy to the expert over the last epoch.
-        accuracy: agreement with the expert's action over the last epoch.
-        train_seconds: wall time of the round's training.
-        train_steps: gradient steps.
-        correction_spread: see ``learner.trainer.RoundStats``.
-        encoder_health: see ``learner.trainer.RoundStats``.
-        config_changes: ``(key, old, new)`` of each setting a ``--resume`` changed from this round
-            on (dotted keys; written ``{key: [old, new]}``, and only when there are some).
-    """
-
-    round_index: int
-    collected_tuples: int | None
-    failed_tasks: tuple[int, ...]
-    collection_seconds: float
-    load_seconds: float
-    completion_by_corrections: tuple[float, ...]
-    buffer_tuples: int
-    loss: float
-    accuracy: float
-    train_seconds: float
-    train_steps: int
-    correction_spread: float | None
-    encoder_health: tuple[EncoderHealth, ...] = ()
-    config_changes: tuple[tuple[str, Any, Any], ...] = ()
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d.update(failed_tasks=list(self.failed_tasks), completion_by_corrections=list(self.completion_by_corrections),
-                 encoder_health=[h.to_list() for h in self.encoder_health])
-        d.pop("config_changes")
-        if self.config_changes:  # absent otherwise: a run without changes writes its lines as before
-            d["config_changes"] = {key: [old, new] for key, old, new in self.config_changes}
-        return {"round": d.pop("round_index"), **d}
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "RoundMetrics":
-        return cls(round_index=int(d["round"]), collected_tuples=d.get("collected_tuples"),
-                   failed_tasks=tuple(d.get("failed_tasks") or ()), collection_seconds=float(d["collection_seconds"]),
-                   load_seconds=float(d.get("load_seconds", 0.0)),
-                   completion_by_corrections=tuple(d["completion_by_corrections"]), buffer_tuples=int(d["buffer_tuples"]),
-                   loss=float(d["loss"]), accuracy=float(d["accuracy"]), train_seconds=float(d["train_seconds"]),
-                   train_steps=int(d.get("train_steps", 0)), correction_spread=d.get("correction_spread"),
-                   encoder_health=tuple(EncoderHealth.from_list(row) for row in d.get("encoder_health") or ()),
-                   config_changes=tuple((str(k), v[0], v[1]) for k, v in (d.get("config_changes") or {}).items()))
 
 
 @dataclass(frozen=True)
@@ -398,7 +339,7 @@ def run_training(cfg: RunConfig, run_dir: str | Path, *, serial: bool = False, a
                 rebuild_metrics(run_dir, ckpt)
                 print(f"{run_dir} has finished {ckpt.round_index + 1} rounds (training.num_rounds is "
                       f"{cfg.training.num_rounds}): nothing to do", flush=True)
-                return TrainingResult(run_dir, tuple(RoundMetrics.from_dict(m) for m in ckpt.history))
+                return TrainingResult(run_dir, tuple(read_round(m) for m in ckpt.history))
             verify_for_resume(root, ckpt, run_dir, identity)
             start_round = 0 if ckpt is None else ckpt.round_index + 1
             for key, old, new in changes:
@@ -454,7 +395,7 @@ def _train(cfg: RunConfig, run_dir: Path, root: str, tasks: tuple[int, ...], ckp
         if ckpt is not None:
             load_learner_state(learner, ckpt, run_dir / "checkpoints" / LATEST)
             restore_rng(ckpt.rng_state)
-            start_round, history = ckpt.round_index + 1, [RoundMetrics.from_dict(m) for m in ckpt.history]
+            start_round, history = ckpt.round_index + 1, [read_round(m) for m in ckpt.history]
             rebuild_metrics(run_dir, ckpt)
             log.info("resuming %s at round %d", run_dir, start_round)
         return _train_rounds(cfg, run_dir, root, tasks, learner, model.uses_corrections, collector, start_round, history,

@@ -513,7 +513,9 @@ def evaluate_run(run_dir: str | Path, *, num_corrections: int | None = None, see
     target = Path(out_dir) if out_dir is not None else run_dir
     cfg, model, ckpt = _load_policy(run_dir, checkpoint, foreign_checkpoint)
     round_index, ckpt_run = ckpt.round_index, ckpt.run_id
-    if ckpt_run is None and not foreign_checkpoint:  # saved before run ids: the run's own (checked above)
+    # A checkpoint that records no run id, found above to be this run's (why_foreign), is recorded as
+    # the run's. Not load_checkpoint's to say: a file alone does not know the run it is read for.
+    if ckpt_run is None and not foreign_checkpoint:
         ckpt_run = resolve_identity(run_dir, cfg.buffer.location or str(run_dir / "buffer")).run_id
     k = cfg.eval.num_corrections if num_corrections is None else num_corrections
     if split is None and swap_instructions:  # a diagnostic: the run's valid split, never a test split

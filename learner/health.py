@@ -48,9 +48,8 @@ class EncoderHealth:
         output_units: units of the encoder's last layer when that layer ends in a ReLU, else 0
             (a linear encoding cannot die).
         dead_output_units: of those, the units never positive.
-        dead_layers: ReLU layers whose every unit is dead (0 in metrics written before it was
-            recorded). One is enough to make the encoding the same for every input: the layers
-            run one after another.
+        dead_layers: ReLU layers whose every unit is dead. One is enough to make the encoding the
+            same for every input: the layers run one after another.
     """
 
     encoder: str
@@ -58,7 +57,7 @@ class EncoderHealth:
     dead_units: int
     output_units: int
     dead_output_units: int
-    dead_layers: int = 0
+    dead_layers: int
 
     @property
     def constant(self) -> bool:
@@ -76,7 +75,11 @@ class EncoderHealth:
 
     @classmethod
     def from_list(cls, row: list) -> "EncoderHealth":
-        return cls(str(row[0]), int(row[1]), int(row[2]), int(row[3]), int(row[4]), int(row[5]) if len(row) > 5 else 0)
+        """The six values ``to_list`` writes (a round's record of any shape: ``learner.rounds.read_round``);
+        ``ValueError`` for another number."""
+        if len(row) != 6:
+            raise ValueError(f"an encoder's health is 6 values, not {len(row)}")
+        return cls(str(row[0]), int(row[1]), int(row[2]), int(row[3]), int(row[4]), int(row[5]))
 
 
 def encoder_health(model: nn.Module, cond) -> tuple[EncoderHealth, ...]:

@@ -4,17 +4,20 @@ The id is recorded in the buffer's marker, in every round manifest and shard rec
 checkpoint and in every evaluation file, so that ``verify``, ``train --resume``, ``eval``,
 ``teach`` and ``serve`` can tell a file of this run from one of another run, naming both.
 
-A run created before identities existed has no ``run.json``: it is *legacy*, and its id is the one
-its buffer's marker and manifests record (its dir's name), so it keeps working as it was.
+A run dir without ``run.json`` (a run made before the file was written, or copied without it) is
+read as a run all the same (``resolve_identity``, the one place that file's absence is handled):
+its id is the one its buffer's marker and manifests record, else its dir's name, and its identity
+says the id is *inferred*, which ``verify`` notes.
 
-A checkpoint is of a run without ``run.json`` (a legacy run, or one copied without it) when nothing
-the run's own files record says otherwise (``why_not_recorded_run``, which ``eval``, ``teach``,
-``serve`` and ``render`` ask before they use it or write into the run): the run id of its buffer's
-marker, as ``verify`` checks it; without a buffer (a run restored from an archive carries none),
-the one run id its other checkpoints and evaluation files record; and in every case the training
-history, which each checkpoint carries and ``metrics.jsonl`` repeats line for line, so that even a
-checkpoint or a run from before run ids is told from another run of the same domain, model and seed
-(every round's wall times differ). A run dir whose files record no id and no round (no buffer
+A checkpoint is of a run without ``run.json`` when nothing the run's own files record says
+otherwise (``why_not_recorded_run``, which ``eval``, ``teach``, ``serve`` and ``render`` ask before
+they use it or write into the run): the run id of its buffer's marker, as ``verify`` checks it;
+without a buffer (a run restored from an archive carries none), the one run id its other
+checkpoints and evaluation files record; and in every case the training history, which each
+checkpoint carries and ``metrics.jsonl`` repeats round for round (both read by
+``learner.rounds.read_round``, whichever shape they were written in), so that even a checkpoint or
+a run that records no run id is told from another run of the same domain, model and seed (every
+round's wall times differ). A run dir whose files record no id and no round (no buffer
 marker, checkpoint, evaluation file or ``metrics.jsonl``) has nothing to check against: only its
 config (domain, model, seed) is compared.
 """
@@ -30,6 +33,7 @@ from pathlib import Path
 
 from gpl_dist.errors import CheckpointError, RunDirError
 from learner.checkpoint import Checkpoint, load_checkpoint
+from learner.rounds import read_metrics, read_round
 from storage.manifest import buffer_run_id
 
 #: The run's identity file, written once when the run is created.
@@ -41,14 +45,14 @@ class RunIdentity:
     """A run's identity.
 
     Attributes:
-        run_id: a UUID (hex) for a run created with identities; a legacy run's marker id or dir name.
-        created: when the run was created (ISO 8601, UTC); empty for a legacy run.
-        legacy: the run has no ``run.json`` (made before identities existed).
+        run_id: the UUID (hex) ``run.json`` records; inferred, its buffer's marker id or its dir's name.
+        created: when the run was created (ISO 8601, UTC); empty when inferred.
+        inferred: the run has no ``run.json``: ``run_id`` is inferred (``resolve_identity``).
     """
 
     run_id: str
     created: str
-    legacy: bool
+    inferred: bool
 
 
 #: The folders of a run dir that gpl-dist writes into and walks (``refuse_linked_folders``).
@@ -71,7 +75,7 @@ def create_identity(run_dir: str | os.PathLike) -> RunIdentity:
     path = Path(run_dir) / RUN_FILE
     if path.exists():
         raise RunDirError(f"{path} exists: {run_dir} already holds a run")
-    identity = RunIdentity(uuid.uuid4().hex, datetime.now(timezone.utc).isoformat(timespec="seconds"), legacy=False)
+    identity = RunIdentity(uuid.uuid4().hex, datetime.now(timezone.utc).isoformat(timespec="seconds"), inferred=False)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{RUN_FILE}.tmp-{os.getpid()}")
     tmp.write_text(json.dumps({"format_version": 1, "run_id": identity.run_id, "created": identity.created}) + "\n")
@@ -95,16 +99,20 @@ def read_identity(run_dir: str | os.PathLike) -> RunIdentity | None:
     run_id = raw.get("run_id") if isinstance(raw, dict) else None
     if not isinstance(run_id, str) or not 0 < len(run_id) <= 64:
         raise RunDirError(f"{path} is damaged (no run_id): the run's identity is lost; restore the file from a copy")
-    return RunIdentity(run_id, str(raw.get("created", ""))[:40], legacy=False)
+    return RunIdentity(run_id, str(raw.get("created", ""))[:40], inferred=False)
 
 
 def resolve_identity(run_dir: str | os.PathLike, buffer_root: str) -> RunIdentity:
-    """The run's identity: ``run.json``'s, else (a legacy run) the id its buffer's marker records,
-    else its dir's name (what runs were called before identities existed)."""
+    """The run's identity: the one place a run dir of either shape is read.
+
+    - no ``run.json`` (made before the file was written, or copied without it): the id its buffer's
+      marker records, else its dir's name, ``inferred``;
+    - ``run.json`` (``format_version`` 1, the current): its id and creation time.
+    """
     identity = read_identity(run_dir)
     if identity is not None:
         return identity
-    return RunIdentity(buffer_run_id(buffer_root) or Path(run_dir).name, "", legacy=True)
+    return RunIdentity(buffer_run_id(buffer_root) or Path(run_dir).name, "", inferred=True)
 
 
 def describe(run_id: str | None) -> str:
@@ -114,7 +122,7 @@ def describe(run_id: str | None) -> str:
 
 def checkpoint_problems(run_dir: str | os.PathLike, run_id: str) -> list[tuple[str, str]]:
     """``(path, what)`` for each checkpoint under ``RUN_DIR/checkpoints`` that is unreadable or of
-    another run than ``run_id`` (a checkpoint saved before run ids existed is taken as the run's)."""
+    another run than ``run_id`` (a checkpoint that records no run id is taken as the run's)."""
     problems = []
     for path in sorted((Path(run_dir) / "checkpoints").glob("*.pt")):
         try:
@@ -144,10 +152,9 @@ def config_problems(run_dir: str | os.PathLike) -> list[tuple[str, str]]:
     except (OSError, UnicodeDecodeError, RunDirError, CheckpointError, ValueError) as err:
         return [(str(path), f"cannot be checked against {latest.name} ({' '.join(str(err).split())[:200]})")]
     expected = _flat(saved if isinstance(saved, dict) else {})
-    for r, row in sorted(_metrics_rows(run_dir).items()):
-        changes = row.get("config_changes")
-        if r <= ckpt.round_index and isinstance(changes, dict):
-            expected.update({k: v[1] for k, v in changes.items() if isinstance(v, list) and len(v) == 2})
+    for r, m in sorted(read_metrics(run_dir, skip_damaged=True).items()):
+        if r <= ckpt.round_index:
+            expected.update({key: new for key, _, new in m.config_changes})
     held = _flat(ckpt.config if isinstance(ckpt.config, dict) else {})
     differ = sorted(k for k in set(expected) | set(held) if expected.get(k) != held.get(k))
     if not differ:
@@ -199,29 +206,13 @@ def recorded_run_ids(run_dir: str | os.PathLike, besides: str | os.PathLike | No
     return ids
 
 
-def _metrics_rows(run_dir: Path) -> dict[int, dict]:
-    """The last ``metrics.jsonl`` line of each round (lines that do not parse are left out)."""
-    rows: dict[int, dict] = {}
+def _canonical(record) -> str:
+    """A round's record in the current shape (``learner.rounds.read_round``), as JSON with sorted
+    keys (NaN equals NaN there, as it does in the file); one that is no round's record, as it is."""
     try:
-        text = (run_dir / "metrics.jsonl").read_text()
-    except (OSError, UnicodeDecodeError):
-        return rows
-    for line in text.splitlines():
-        try:
-            row = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(row, dict) and isinstance(row.get("round"), int):
-            rows[row["round"]] = row
-    return rows
-
-
-def _canonical(row: dict) -> str:
-    """A metrics row as JSON with sorted keys (NaN equals NaN there, as it does in the file)."""
-    try:
-        return json.dumps(row, sort_keys=True)
-    except (TypeError, ValueError):
-        return repr(row)
+        return json.dumps(read_round(record).to_dict(), sort_keys=True)
+    except (KeyError, TypeError, ValueError):
+        return repr(record)
 
 
 def why_not_recorded_run(run_dir: str | os.PathLike, ckpt: Checkpoint, ckpt_file: str | os.PathLike,
@@ -243,10 +234,10 @@ def why_not_recorded_run(run_dir: str | os.PathLike, ckpt: Checkpoint, ckpt_file
         if ids and ckpt.run_id not in ids:
             return (f"{ckpt_file} is a checkpoint of run {describe(ckpt.run_id)}, not of {run_dir} (run "
                     f"{describe(next(iter(ids)))}, as {where}; it has no run.json)")
-    rows = _metrics_rows(run_dir)
+    rows = read_metrics(run_dir, skip_damaged=True)
     for theirs in ckpt.history:
         r = theirs.get("round") if isinstance(theirs, dict) else None
-        if r in rows and _canonical(rows[r]) != _canonical(theirs):
+        if r in rows and _canonical(rows[r].to_dict()) != _canonical(theirs):
             return (f"{ckpt_file} is not a checkpoint of {run_dir}: its record of round {r} differs from "
                     f"{run_dir / 'metrics.jsonl'}'s (the run has no run.json; its training history tells it apart)")
     return None

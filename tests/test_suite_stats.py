@@ -18,8 +18,8 @@ from gpl_dist.app.suite.report import (
 from gpl_dist.app.suite.report_paper import load_paper
 from gpl_dist.app.suite.run_facts import run_budget, run_health
 from gpl_dist.app.suite.stats import mean_ci, t_quantile, t_two_sided_p, welch
-from learner.driver import RoundMetrics
 from learner.health import EncoderHealth
+from learner.rounds import RoundMetrics
 
 # two-sided 95 % critical values of Student's t (any statistics table)
 T975 = {1: 12.7062, 2: 4.3027, 3: 3.1824, 4: 2.7764, 5: 2.5706, 9: 2.2622, 19: 2.0930, 30: 2.0423}

@@ -26,13 +26,15 @@ JPEG-encoded):
   ``correction_after`` / ``correction_after_ids`` / ``correction_after_kind`` (the one given after
   this attempt: the buffer's ``correction`` column).
 
-**Teaching logs** (``gpl-dist teach``/``serve``, ``gpl_dist.app.teaching.LOG_SCHEMA``) export the
+**Teaching logs** (``gpl-dist teach``/``serve``, ``gpl_dist.app.teaching.LOG_SCHEMA``, read by
+``gpl_dist.app.teaching.read_teaching_log`` whichever shape they were written in) export the
 same way (``export_teaching_minari``): each logged attempt, undone ones included, is replayed from
 its episode's seed and the corrections it was conditioned on (exact: the rollout is seeded), checked
 against the completion the log recorded, and written as an episode of the same spaces, labelled by
 the expert. Its metadata: ``episode``, ``source``, ``run_dir``, ``checkpoint``, ``checkpoint_round``,
 ``greedy``, ``task_id``, ``split``, ``attempt_index``, ``seed``, ``completion``, ``success``,
-``solved_at``, ``undone``, ``hint_shown``, ``started_at``, ``seconds``, the language as above
+``solved_at`` (of the replay: the step it first solved the task, -1 never), ``undone``,
+``hint_shown``, ``started_at``, ``seconds``, the language as above
 (``corrections_before`` as the policy read them, with ids) and what the person typed:
 ``typed_before`` (the text typed for the correction that led to this attempt: it differs from the
 last of ``corrections_before`` when the closest known phrasing was sent) and ``unknown_words``.
@@ -304,10 +306,8 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     """Write every attempt of the teaching logs in ``log_dir`` as a Minari dataset under ``out``
     (see the module docstring); returns the dataset id and the number of episodes. ``run_dir``
     replaces the run dir the logs name (logs copied from another machine)."""
-    import pyarrow.dataset as ds
-
     from gpl_dist.app.policy import load_policy
-    from gpl_dist.app.teaching import LOG_SCHEMA
+    from gpl_dist.app.teaching import read_teaching_log
 
     EpisodeBuffer, MinariDataset, MinariStorage = _minari()
     if dataset_id:
@@ -316,14 +316,7 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
     files = teaching_log_files(log_dir) if log_dir.is_dir() else []
     if not files:
         raise UsageError(f"{log_dir} holds no teaching log (*.parquet not starting with '_' or '.')")
-    try:
-        table = ds.dataset([str(f) for f in files], format="parquet").to_table()
-    except (OSError, ValueError) as err:
-        raise UsageError(f"cannot read the teaching logs in {log_dir} ({type(err).__name__}: {str(err)[:200]})") from None
-    missing = [n for n in LOG_SCHEMA.names if n not in table.column_names]
-    if missing:
-        raise UsageError(f"{log_dir}: not teaching logs (no column {', '.join(missing[:3])})")
-    rows = table.to_pylist()
+    rows = read_teaching_log(files)
     sources = {(r["run_dir"], r["checkpoint"], bool(r["greedy"]), r["domain"]) for r in rows}
     domains = {s[3] for s in sources}
     if len(domains) != 1:
@@ -361,12 +354,13 @@ def export_teaching_minari(log_dir: str | Path, out: str | Path, dataset_id: str
                         raise UsageError(f"{what} replays to completion {a.completion:.4f}, not the logged "
                                          f"{row['completion']:.4f}: another checkpoint or code than the one that taught")
                     ids = [[int(i) for i in r.correction_ids] for r in replayed[:-1]]  # what the policy read
+                    solved_at = policy.solved_at(a)  # of the attempt replayed, which is the logged one (checked above)
                     metas.append({
                         "episode": episode, "source": row["source"], "run_dir": row["run_dir"], "checkpoint": row["checkpoint"],
                         "checkpoint_round": row["checkpoint_round"], "greedy": row["greedy"], "task_id": row["task_id"],
                         "split": row["split"], "attempt_index": row["attempt"], "seed": row["seed"],
                         "completion": row["completion"], "success": row["success"],
-                        "solved_at": -1 if row["solved_at"] is None else row["solved_at"], "undone": row["undone"],
+                        "solved_at": -1 if solved_at is None else solved_at, "undone": row["undone"],
                         "hint_shown": row["hint_shown"], "started_at": row["started_at"].isoformat(),
                         "seconds": row["seconds"], "instruction": a.instruction,
                         "instruction_ids": [int(i) for i in a.instruction_ids],

@@ -64,7 +64,8 @@ def report_lines(report: VerifyReport) -> list[str]:
 @dataclass(frozen=True)
 class RunChecks:
     """A run dir's checks beyond its buffer: the run id its buffer must carry (None for a bare
-    buffer), a note when it has no ``run.json``, and a ``path: what`` line per problem: a
+    buffer), a note naming the id it is checked as when that id is inferred (no ``run.json``:
+    ``learner.identity.resolve_identity``), and a ``path: what`` line per problem: a
     ``config.yaml`` edited after the run wrote it, a checkpoint unreadable or of another run."""
 
     run_id: str | None
@@ -79,8 +80,8 @@ def run_checks(path: str, root: str) -> RunChecks:
     from learner.identity import checkpoint_problems, config_problems, resolve_identity
 
     identity = resolve_identity(path, root)
-    note = (f"note: {path} has no run.json (made before run identities): checked as run {identity.run_id[:64]}"
-            if identity.legacy else None)
+    note = (f"note: {path} has no run.json: checked as run {identity.run_id[:64]} (its buffer's marker id, else its "
+            "dir's name)" if identity.inferred else None)
     problems = config_problems(path) + checkpoint_problems(path, identity.run_id)
     return RunChecks(identity.run_id, note, tuple(f"{p}: {what}" for p, what in problems))
 

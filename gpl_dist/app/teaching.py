@@ -343,7 +343,8 @@ class Teacher:
         return self.policy.oracle_correction(attempt, seed)
 
 
-#: Splits named in the log, the first holding the task (``gpl_dist.splits.split_of``).
+#: Splits named in the log first, the first holding the task (``gpl_dist.splits.split_of``); a
+#: domain's other splits follow in its declared order.
 SPLIT_ORDER = ("test", "train", "valid", "heldout_test", "heldout_train")
 #: Seeds are mixed as 32-bit words (``gpl_dist.seeding``): larger ones would repeat smaller ones.
 MAX_SEED = 2**32 - 1
@@ -380,8 +381,10 @@ class TeachingEpisode:
 
     @property
     def split(self) -> str:
-        """The split holding the task (``test``: held out from training)."""
-        return split_of(self.teacher.domain.name, self.task_id, SPLIT_ORDER)
+        """The split holding the task (``test``: held out from training): the first of
+        ``SPLIT_ORDER``, then of the domain's other splits in its declared order, that holds it."""
+        domain = self.teacher.domain
+        return split_of(domain.name, self.task_id, SPLIT_ORDER + tuple(n for n in domain.split_names if n not in SPLIT_ORDER))
 
     @property
     def solved(self) -> bool:
@@ -641,6 +644,52 @@ LOG_SCHEMA = pa.schema([
     ("success", pa.bool_()), ("solved_at", pa.int64()), ("undone", pa.bool_()),
     ("started_at", pa.timestamp("us", tz="UTC")), ("seconds", pa.float64()),
 ])
+
+
+#: The columns a log read by ``read_teaching_log`` lacks when it names the correction that led to
+#: an attempt ``correction``: what the policy was sent, of which the current log says more.
+_SAID_BEFORE = ("correction_before", "typed", "solved_at", "undone")
+
+
+def read_teaching_log(files: Collection[str | Path]) -> list[dict]:
+    """The rows of the teaching logs ``files`` (``*.parquet``; ``gpl_dist.app.export.teaching_log_files``
+    lists a folder's), in the current shape (``LOG_SCHEMA``), file after file: the one place a log
+    of an older shape is read. The shapes, oldest first:
+
+    - the correction that led to an attempt as ``correction``, and no ``checkpoint``, ``greedy``
+      or ``split``: refused (``UsageError``), as nothing records which weights acted, nor how;
+    - ``correction`` (what the policy was sent; there was no undo), with ``checkpoint``,
+      ``greedy`` and ``split``: ``correction_before`` is it, ``typed`` is it too (what was typed
+      instead was not recorded), ``undone`` false, ``solved_at`` null (not recorded; a replay of
+      the attempt tells it, as the export's does);
+    - the current: every column of ``LOG_SCHEMA``.
+
+    A file that cannot be read, or holds no teaching log, fails in one line naming it (``UsageError``)."""
+    import pyarrow.parquet as pq
+
+    tables = []
+    for path in files:
+        try:
+            table = pq.read_table(str(path))
+        except (OSError, ValueError) as err:
+            raise UsageError(f"cannot read the teaching log {path} ({type(err).__name__}: {str(err)[:200]})") from None
+        names = set(table.column_names)
+        if "correction" in names and not {"checkpoint", "greedy", "split"} <= names:
+            raise UsageError(f"{path} records no checkpoint file and no greedy or sampled actions: a log written "
+                             "before they were recorded cannot be replayed")
+        if "correction" in names and not names & set(_SAID_BEFORE):
+            sent = table.column("correction")
+            table = (table.append_column("correction_before", sent).append_column("typed", sent)
+                     .append_column("solved_at", pa.nulls(table.num_rows, pa.int64()))
+                     .append_column("undone", pa.array([False] * table.num_rows, pa.bool_())))
+        missing = [n for n in LOG_SCHEMA.names if n not in table.column_names]
+        if missing:
+            raise UsageError(f"{path}: not a teaching log (no column {', '.join(missing[:3])})")
+        try:
+            tables.append(table.select(LOG_SCHEMA.names).cast(LOG_SCHEMA))
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError) as err:
+            raise UsageError(f"{path}: not a teaching log ({str(err)[:200]})") from None
+    return pa.concat_tables(tables).to_pylist() if tables else []
 
 
 def episode_log_bytes(episode: TeachingEpisode) -> bytes:

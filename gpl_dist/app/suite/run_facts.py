@@ -1,6 +1,6 @@
 """What a run's own files say beside its evaluations: its health, its budget, its learning curve.
 
-Read from an (archived) run dir: ``metrics.jsonl`` (one row a DAgger round, ``learner.driver.RoundMetrics``),
+Read from an (archived) run dir: ``metrics.jsonl`` (one row a DAgger round, ``learner.rounds.RoundMetrics``),
 ``checkpoints/latest.pt`` (the final weights) and, where the suite computed it, ``curve-valid.json``
 (completion on the run's valid split after each round, ``gpl_dist.app.suite.curves``). A curve or
 swap file measured on another split than the run's valid split (``run_valid_split``) is not read as
@@ -15,7 +15,6 @@ marked uninstrumented.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,8 +25,9 @@ from gpl_dist.domains import is_loaded
 from gpl_dist.errors import RunDirError, UserError
 from gpl_dist.splits import valid_split
 from learner.checkpoint import LATEST, load_checkpoint
-from learner.driver import RoundMetrics
 from learner.health import EncoderHealth
+from learner.rounds import METRICS_FILE, RoundMetrics
+from learner.rounds import read_metrics as read_round_metrics
 
 #: Entries of a state dict that are not trained parameters (BatchNorm's running statistics).
 _NOT_PARAMETERS = ("running_mean", "running_var", "num_batches_tracked")
@@ -158,21 +158,14 @@ def instruction_swap(run_dir: Path) -> InstructionSwap | None:
 
 
 def read_metrics(run_dir: Path) -> list[RoundMetrics]:
-    """The rounds of ``run_dir/metrics.jsonl`` (the last row of each round: a resumed round is
-    written once more); a damaged row fails in one line naming the file."""
-    path = run_dir / "metrics.jsonl"
+    """The rounds of ``run_dir/metrics.jsonl`` in the current shape (``learner.rounds.read_metrics``:
+    the last record of each round, whichever shape it was written in); a missing file or a damaged
+    line fails in one line naming the file."""
+    path = run_dir / METRICS_FILE
     if not path.is_file():
         raise RunDirError(f"{path} is missing: the run's health and budget cannot be read")
-    rows: dict[int, RoundMetrics] = {}
-    for n, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            m = RoundMetrics.from_dict(json.loads(line))
-        except (ValueError, KeyError, TypeError) as err:
-            raise RunDirError(f"{path}:{n}: not a round's metrics ({type(err).__name__}: {err})") from None
-        rows[m.round_index] = m
-    return [rows[r] for r in sorted(rows)]
+    rounds = read_round_metrics(run_dir)
+    return [rounds[r] for r in sorted(rounds)]
 
 
 def run_health(run_dir: Path) -> RunHealth:
