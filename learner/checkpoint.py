@@ -119,7 +119,7 @@ def load_checkpoint(path: str | os.PathLike) -> Checkpoint:
     except Exception as err:  # noqa: BLE001 - torch raises many types for a bad file; its text suggests unsafe loading
         raise CheckpointError(f"{p} is not a readable gpl-dist checkpoint ({type(err).__name__})") from None
     fields = {f.name for f in dataclasses.fields(Checkpoint)}
-    if not isinstance(raw, dict) or set(raw) not in (fields, fields - {"run_id"}):  # without: saved before run ids
+    if not isinstance(raw, dict) or set(raw) not in (fields, fields - {"run_id"}):  # without: the era with no run id
         have = sorted(map(str, raw))[:20] if isinstance(raw, dict) else type(raw).__name__
         raise CheckpointError(f"{p} is not a gpl-dist checkpoint (holds {have})")
     if not isinstance(raw.get("run_id", ""), str):
@@ -156,7 +156,8 @@ def _flat_moments(state: dict, model_state: dict, path: Path) -> dict:
 
 def check_checkpoint_run(ckpt: Checkpoint, path: str | os.PathLike, run_id: str, run_dir: str | os.PathLike) -> None:
     """``CheckpointError`` naming both runs when ``ckpt`` was trained by another run than ``run_id``
-    (a checkpoint without a run id, saved before run ids existed, is taken as the run's own)."""
+    (a checkpoint that records no run id is taken as the run's own: ``load_checkpoint`` reads that
+    era's files with ``run_id`` None)."""
     if ckpt.run_id is not None and ckpt.run_id != run_id:
         raise CheckpointError(f"{path} is a checkpoint of run {ckpt.run_id[:64]}, not of {run_dir} (run {run_id[:64]})")
 
