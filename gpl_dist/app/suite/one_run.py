@@ -97,10 +97,24 @@ def trained_as_here(run: SuiteRun, here: str) -> bool | None:
     return here not in NOT_BITWISE and recorded == [here]
 
 
+#: Fields a config leaves "" for its domain to fill (``RunConfig.__post_init__``): they stay "" when
+#: the domain is a plug-in that a read-only command does not import.
+DOMAIN_FILLED = (("env", "expert"), ("env", "train_split"), ("eval", "split"))
+
+
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
-    """A run dir made by another version of its entry is refused: its results would be mixed."""
-    saved = run.run_dir / "config.yaml"
-    if saved.is_file() and results_dict(load_config(saved, plugins="none")) != results_dict(cfg):
+    """A run dir made by another version of its entry is refused: its results would be mixed. A
+    field the entry leaves to a domain that is not loaded here (``DOMAIN_FILLED``) is not the
+    entry's to decide, so the run's own value stands for it."""
+    saved_path = run.run_dir / "config.yaml"
+    if not saved_path.is_file():
+        return
+    saved = load_config(saved_path, plugins="none")
+    for section, key in DOMAIN_FILLED:
+        if getattr(getattr(cfg, section), key) == "":
+            part = dataclasses.replace(getattr(cfg, section), **{key: getattr(getattr(saved, section), key)})
+            cfg = dataclasses.replace(cfg, **{section: part})
+    if results_dict(saved) != results_dict(cfg):
         raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
                           "(the suite file or the base config changed): use another --out, or remove that run dir")
 

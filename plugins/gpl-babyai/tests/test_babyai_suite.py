@@ -30,3 +30,24 @@ def test_the_babyai_suite_trains_four_methods_at_five_seeds_and_tests_every_leve
     assert all(split_tasks("babyai", s) for s in splits)
     for entry in suite.entries:
         assert set(entry.evaluations) == set(suite.evaluations)
+
+
+def test_suite_status_reads_the_archived_babyai_runs_without_importing_the_plug_in(tmp_path):
+    """The study's archived runs (``docs/babyai-report/runs``), restored, count as done for
+    ``suite status``, a read-only command that imports no plug-in (a fresh process, as a user runs
+    it): the fields the entry leaves to the domain (its expert, its splits) are the runs' own, not
+    a changed config."""
+    import subprocess
+    import sys
+
+    archive = SUITE.parents[2] / "docs" / "babyai-report" / "runs"
+    out = tmp_path / "babyai"
+
+    def cli(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "gpl_dist.cli", *args], capture_output=True, text=True, timeout=300)
+
+    assert cli("suite", "restore", str(archive), "--out", str(out)).returncode == 0
+    status = cli("suite", "status", str(SUITE), "--out", str(out))
+    assert status.returncode == 0, status.stderr[-500:]
+    done = [line for line in status.stdout.splitlines() if line.startswith("done")]
+    assert len(done) >= 4 and all("babyai-gpl" in line for line in done)
