@@ -189,6 +189,12 @@ class EvalConfig:
     """Say instructions and corrections as the oracle does (canonical), or as train or heldout paraphrases."""
 
 
+#: The (section, key) fields a config may leave "" for its domain to fill (``RunConfig.__post_init__``:
+#: its first expert, its training and evaluation splits); they stay "" while a plug-in domain is not
+#: loaded (a read-only command).
+DOMAIN_FILLED = (("env", "expert"), ("env", "train_split"), ("eval", "split"))
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """A whole run's config: the seed and one section per component."""
@@ -213,7 +219,7 @@ class RunConfig:
         splits), once the domain is known (a plug-in's module loads in ``config_from_dict``)."""
         from gpl_dist.domains import get_domain, is_loaded
 
-        if not (self.env.expert and self.env.train_split and self.eval.split) and is_loaded(self.env.domain):
+        if any(getattr(getattr(self, part), key) == "" for part, key in DOMAIN_FILLED) and is_loaded(self.env.domain):
             spec = get_domain(self.env.domain)
             object.__setattr__(self, "env", dataclasses.replace(
                 self.env, expert=self.env.expert or next(iter(spec.experts)),

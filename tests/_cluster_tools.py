@@ -114,6 +114,19 @@ def kill_session(sid: int, timeout: float = 20.0) -> list[int]:
     return stragglers
 
 
+def wait_for_port(port: int, proc: subprocess.Popen, seconds: float = 60) -> None:
+    """Return once something listens on loopback ``port``; fail if ``proc`` (the server) exits first
+    or nothing listens within ``seconds``."""
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        assert proc.poll() is None, f"the server exited with {proc.returncode}"
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.2)
+    raise TimeoutError(f"nothing listened on port {port} within {seconds:.0f} s")
+
+
 def wait_for(path: Path, proc=None, timeout: float = 120.0) -> None:
     deadline = time.monotonic() + timeout
     while not path.exists():

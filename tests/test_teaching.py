@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.dataset as pads
 import pytest
-from _cluster_tools import GPL_DIST, free_ports, quiet_env
+from _cluster_tools import GPL_DIST, free_ports, quiet_env, wait_for_port
 
 from gpl_dist.app.teaching import (
     MAX_TEXT_CHARS,
@@ -338,17 +338,6 @@ def test_the_web_api_keeps_episodes_apart_and_answers_bad_input_in_one_sentence(
     assert client.get(f"/api/episodes/{a['episode_id']}/hint").json()["hint"]
 
 
-def _wait_for_port(port: int, proc: subprocess.Popen, seconds: float = 60) -> None:
-    deadline = time.time() + seconds
-    while time.time() < deadline:
-        assert proc.poll() is None, f"gpl-dist serve exited with {proc.returncode}"
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.2)
-    raise TimeoutError(f"gpl-dist serve did not listen on {port}")
-
-
 def test_a_browser_teaches_a_full_episode(run, tmp_path):
     """Headless Chromium (Debian's, installed by .ci/run) through the page: load, first attempt,
     type a correction with an unknown word (highlighted), fix it, see the second attempt; a second
@@ -361,7 +350,7 @@ def test_a_browser_teaches_a_full_episode(run, tmp_path):
     server = subprocess.Popen([GPL_DIST, "serve", "--run-dir", str(run), "--port", str(port), "--out", str(tmp_path)],
                               env=quiet_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        _wait_for_port(port, server)
+        wait_for_port(port, server)
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
             page = browser.new_page()

@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.dataset as pads
 import pyarrow.parquet as pq
 import pytest
-from _cluster_tools import GPL_DIST, free_ports, quiet_env
+from _cluster_tools import GPL_DIST, free_ports, quiet_env, wait_for_port
 
 from gpl_dist import atomic
 from gpl_dist.app.teaching import Teacher, TeachingError, write_episode_log
@@ -246,15 +246,7 @@ def test_the_page_shows_why_an_attempt_was_not_saved(run, tmp_path):
     server = subprocess.Popen([GPL_DIST, "serve", "--run-dir", str(run), "--port", str(port), "--out", str(tmp_path)],
                               env=quiet_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        deadline = time.time() + 120
-        import socket
-
-        while True:
-            assert server.poll() is None and time.time() < deadline, "gpl-dist serve did not start"
-            with socket.socket() as s:
-                if s.connect_ex(("127.0.0.1", port)) == 0:
-                    break
-            time.sleep(0.2)
+        wait_for_port(port, server, seconds=120)
         with sync_playwright() as p:
             browser = p.chromium.launch(executable_path=chromium, headless=True, args=["--no-sandbox"])
             page = browser.new_page()

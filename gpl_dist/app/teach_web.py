@@ -269,13 +269,15 @@ def create_app(teacher: Teacher, out_dir: Path, split: str = "test", host: str =
     def favicon() -> Response:
         return Response(status_code=204)
 
+    legend = [{"colour": c, "meaning": m} for c, m in picture_legend(domain)]  # an env built once per server
+
     @app.get("/api/info")
     def info() -> dict:
         return {"domain": domain.name, "run_dir": teacher.run_dir, "checkpoint_round": teacher.round_index,
                 "variant": teacher.cfg.model.variant, "num_tasks": domain.num_tasks, "split": split,
                 "max_corrections": teacher.max_corrections, "max_text_chars": MAX_TEXT_CHARS,
                 "examples": teacher.examples(),  # the kind (and paraphrases) this policy trained on
-                "legend": [{"colour": c, "meaning": m} for c, m in picture_legend(domain)],
+                "legend": legend,
                 "example_instruction": domain.instruction_of(split_tasks(domain.name, split)[0])}
 
     @app.post("/api/check", response_model=CheckView)

@@ -15,7 +15,7 @@ from gpl_dist.app.suite.evidence import CHECKSUMS, check_run
 from gpl_dist.app.suite.provenance import code_commit
 from gpl_dist.app.suite.records import CURVE_TASKS, CurveSettings
 from gpl_dist.app.suite.spec import EVAL_DEFAULTS, Suite, SuiteRun
-from gpl_dist.config import ConfigError, RunConfig, load_config, results_dict
+from gpl_dist.config import DOMAIN_FILLED, ConfigError, RunConfig, load_config, results_dict
 from gpl_dist.errors import RunDirError
 from learner.checkpoint import rounds_trained
 from learner.cpu import numerics_fingerprint
@@ -97,14 +97,9 @@ def trained_as_here(run: SuiteRun, here: str) -> bool | None:
     return here not in NOT_BITWISE and recorded == [here]
 
 
-#: Fields a config leaves "" for its domain to fill (``RunConfig.__post_init__``): they stay "" when
-#: the domain is a plug-in that a read-only command does not import.
-DOMAIN_FILLED = (("env", "expert"), ("env", "train_split"), ("eval", "split"))
-
-
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
     """A run dir made by another version of its entry is refused: its results would be mixed. A
-    field the entry leaves to a domain that is not loaded here (``DOMAIN_FILLED``) is not the
+    field the entry leaves to a domain that is not loaded here (``gpl_dist.config.DOMAIN_FILLED``) is not the
     entry's to decide, so the run's own value stands for it."""
     saved_path = run.run_dir / "config.yaml"
     if not saved_path.is_file():
