@@ -360,6 +360,18 @@ def test_status_predicts_what_is_left_from_the_suites_own_finished_runs(tmp_path
     # a fresh folder, predicted from the finished one
     fresh = predict(suite, tmp_path / "fresh", {}, measured_in=out)
     assert len(fresh.runs) == 3 and fresh.total_seconds == pytest.approx(3 * took)
+    # an evaluation added to the entry that no run has made yet: the trained run only evaluates,
+    # its estimate leaves that evaluation out and names it, and the total is a lower bound
+    test = {"split": "test", "seeds": [0, 1], "num_corrections": 2, "greedy_actions": False, "max_tasks": 4}
+    added = load_suite(write_suite(tmp_path / "d.yaml", {"gpl": entry(evaluations=("test", "valid"))},
+                                   {"test": test, "valid": {**test, "split": "valid"}}))
+    states = {r.run_dir: run_state(r, added) for r in plan(added, out)}
+    assert list(states.values()) == ["evaluate"]
+    (only,) = predict(added, out, states).runs
+    assert (only.train_seconds, only.eval_seconds, only.unmeasured) == (0.0, 0.0, ("valid",))
+    assert not predict(added, out, states).complete
+    assert main(["suite", "status", str(tmp_path / "d.yaml"), "--out", str(out)]) == 0
+    assert "at least" in capsys.readouterr().out
 
 
 def test_valid_curves_evaluate_every_rounds_weights_resume_and_reach_the_archive_and_report(tmp_path):

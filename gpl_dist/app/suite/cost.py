@@ -5,7 +5,9 @@ from constants: a run's training from the ``train_seconds`` that finished runs r
 ``suite-run.json`` (per DAgger round, so a resumed run pays only its rounds left), each evaluation
 from the seconds recorded for it, an RL job from the ``seconds`` in finished results. The source is
 the same entry's finished runs when it has some, else its domain's (the same evaluation name, the
-same RL method); a run with neither has no estimate and the total says so ("at least").
+same RL method). A run whose training has neither has no estimate; an evaluation that no finished
+run has made yet is left out of its run's estimate and named (``RunCost.unmeasured``); either way
+the total says "at least".
 
 The figures are as fast as the code that measured them: after a speed change, the first finished
 runs of the new code are the ones to trust (``CostSource.commits`` names the commits behind each
@@ -32,20 +34,22 @@ class RunCost:
     Attributes:
         run: the run.
         train_seconds: its training left (0 when trained), or None without a source.
-        eval_seconds: its evaluations left, or None when one of them has no source.
+        eval_seconds: its evaluations left that have a source.
         source: where the figures come from: ``entry``, ``domain`` or ``none``.
+        unmeasured: its evaluations left without a source (not in ``eval_seconds``).
     """
 
     run: SuiteRun
     train_seconds: float | None
-    eval_seconds: float | None
+    eval_seconds: float
     source: str
+    unmeasured: tuple[str, ...] = ()
 
     @property
     def seconds(self) -> float | None:
-        if self.train_seconds is None or self.eval_seconds is None:
-            return None
-        return self.train_seconds + self.eval_seconds
+        """Training and evaluations left; None without a training estimate (a lower bound when
+        ``unmeasured``)."""
+        return None if self.train_seconds is None else self.train_seconds + self.eval_seconds
 
 
 @dataclass(frozen=True)
@@ -83,7 +87,7 @@ class SuiteCost:
     @property
     def complete(self) -> bool:
         """Whether every run and job left has a prediction."""
-        return all(r.seconds is not None for r in self.runs) and self.rl_unknown == 0
+        return all(r.seconds is not None and not r.unmeasured for r in self.runs) and self.rl_unknown == 0
 
 
 def _domain(run: SuiteRun, suite: Suite) -> str:
@@ -151,13 +155,16 @@ def predict(suite: Suite, out: str | Path, states: dict[Path, str], rl_left: tup
             train = None if per is None else rounds_left * per
             sources.append(source)
         done = (read_record(run.run_dir) or {}).get("evaluations", {}) if run.run_dir.is_dir() else {}
-        evals: float | None = 0.0
+        evals, unmeasured = 0.0, []
         for name in run.entry.evaluations:
             if name not in done:
                 seconds, source = _lookup(per_eval, tuple((k, name) for k in keys))
-                evals = None if seconds is None or evals is None else evals + seconds
-                sources.append(source)
-        costs.append(RunCost(run, train, evals, max(sources, key=order.__getitem__)))
+                if seconds is None:
+                    unmeasured.append(name)
+                else:
+                    evals += seconds
+                    sources.append(source)
+        costs.append(RunCost(run, train, evals, max(sources, key=order.__getitem__), tuple(unmeasured)))
     rl_seconds, rl_unknown = _rl_cost(source_dir, rl_left, commits)
     return SuiteCost(tuple(costs), rl_seconds, len(rl_left), rl_unknown, tuple(sorted(commits)))
 

@@ -85,7 +85,9 @@ def suite_status(suite: Suite, suite_file: str, out: str, only: tuple[str, ...] 
     predicted = {c.run.run_dir: c for c in cost.runs}
     for run, line in lines:
         c = predicted.get(run.run_dir)
-        printed.append(line if c is None else f"{line}  ~{hours(c.seconds)}{'' if c.source == 'entry' else f' ({c.source})'}")
+        unmeasured = f" + {', '.join(c.unmeasured)} (no evaluation of that name finished yet)" if c and c.unmeasured else ""
+        printed.append(line if c is None else f"{line}  ~{hours(c.seconds)}{'' if c.source == 'entry' else f' ({c.source})'}"
+                                               f"{unmeasured}")
     if suite.rl is not None:
         counts = (("RL jobs", len(jobs) - len(rl_left), len(jobs)),
                   ("GPL/GPR attempt sets", sum(attempts_current(out, j, rl_plan) for j in points), len(points)))
@@ -97,12 +99,15 @@ def suite_status(suite: Suite, suite_file: str, out: str, only: tuple[str, ...] 
           f"on this machine (RL {hours(cost.rl_seconds)}), from this suite's finished work"
           + (f" under {costs_from}" if costs_from else "")
           + (f" at commit(s) {', '.join(cost.commits)}" if cost.commits else " (none finished yet: no estimate)")
-          + ("" if cost.complete else f"; {sum(c.seconds is None for c in cost.runs) + cost.rl_unknown} without an estimate"))
+          + "".join(f"; {n} {what}" for n, what in (
+              (sum(c.seconds is None for c in cost.runs) + cost.rl_unknown, "without an estimate"),
+              (sum(bool(c.unmeasured) for c in cost.runs), "with evaluations not measured yet")) if n))
     if len(cost.runs) > 1:
         plan_here = local_plan(len(cost.runs), os.cpu_count() or 1)
         printed.append(f"at once ('suite run' here: {plan_here.runs_at_once} runs at a time, each with "
                        f"{plan_here.workers} rollout actor(s)): {bound}{hours(cost.at_once_seconds(plan_here.runs_at_once))}, "
-                       "each run at the pace its figures were measured at (measured alone, a run at once is slower)")
+                       "each run at the pace its figures were measured at (a figure from a run trained alone is faster "
+                       "than the same run at once)")
     if here:
         printed.append(f"numerics: this machine's {', '.join(sorted(here))} ({machine_summary()}); of the "
                        f"{sum(numerics.values())} trained runs, {numerics[True]} were trained under it ('numerics as "

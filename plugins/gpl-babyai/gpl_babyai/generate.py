@@ -21,7 +21,12 @@ records the minigrid version it was made with):
   tasks round-robin over the levels (the first task of each level, then the second, ...): gpl-dist
   takes a split's first N tasks for ``env.max_train_tasks`` and ``eval.max_tasks``, and those then
   span every level; the per-level splits are sorted;
-- task ids run level by level, seeds ascending within a level.
+- task ids run level by level, seeds ascending within a level;
+- fresh tasks: per level, the first ``FRESH`` accepted seeds from ``FRESH_SEED_START`` on (far
+  beyond every seed the splits above considered), by the same acceptance rule, in
+  ``fresh_test`` (trained levels) and ``fresh_heldout_level_test`` (held-out levels): missions
+  drawn from the level generators that no split above holds. Their rows follow every other row,
+  so the ids above do not depend on them.
 """
 
 from __future__ import annotations
@@ -47,16 +52,19 @@ TRAIN, VALID, TEST, HELDOUT = 80, 20, 30, 50
 BOT_STEP_CAP = 96
 #: ... and its mission has at most this many words (the vocabulary's ``max_tokens``).
 MAX_WORDS = 40
-VERSION = 1
+#: Fresh tasks per level, from seed ``FRESH_SEED_START`` on.
+FRESH, FRESH_SEED_START = 20, 1_000_000
+VERSION = 2
 
 
-def _accepted(level: str, count: int, log) -> tuple[list[tuple[int, str, int]], dict]:
-    """The first ``count`` accepted seeds of ``level``: ``[(seed, mission, bot steps)]``, and why others were not."""
+def _accepted(level: str, count: int, log, start: int = 0) -> tuple[list[tuple[int, str, int]], dict]:
+    """The first ``count`` accepted seeds of ``level`` from ``start`` on: ``[(seed, mission, bot steps)]``,
+    and why others were not."""
     from gpl_babyai.level import LevelCore
     from gpl_dist.language import split_words
 
     core = LevelCore(level)
-    out, rejected, seed = [], {"bot failed": 0, "bot too long": 0, "mission too long": 0}, 0
+    out, rejected, seed = [], {"bot failed": 0, "bot too long": 0, "mission too long": 0}, start
     while len(out) < count:
         core.generate(seed)
         mission = core.mission
@@ -72,8 +80,8 @@ def _accepted(level: str, count: int, log) -> tuple[list[tuple[int, str, int]], 
             else:
                 out.append((seed, mission, steps))
         seed += 1
-    log(f"{level}: {count} tasks from seeds 0..{seed - 1} (rejected: {rejected})")
-    return out, {"candidates": seed, **rejected}
+    log(f"{level}: {count} tasks from seeds {start}..{seed - 1} (rejected: {rejected})")
+    return out, {"candidates": seed - start, **rejected}
 
 
 def make_table(seed: int = 0, log=lambda s: None) -> dict:
@@ -99,17 +107,28 @@ def make_table(seed: int = 0, log=lambda s: None) -> dict:
         splits["valid"] += dealt[TRAIN:TRAIN + VALID]
         splits["test"] += dealt[TRAIN + VALID:]
         per_level[f"test_{level}"] = dealt[TRAIN + VALID:]
+    fresh: dict[str, list[int]] = {"fresh_test": [], "fresh_heldout_level_test": []}
+    fresh_stats = {}
+    for index, level in enumerate(levels):
+        accepted, fresh_stats[level] = _accepted(level, FRESH, log, start=FRESH_SEED_START)
+        first = len(tasks)
+        tasks += [[index, s, mission, steps] for s, mission, steps in accepted]
+        fresh["fresh_heldout_level_test" if level in HELDOUT_LEVELS else "fresh_test"] += range(first, len(tasks))
     splits = {name: _round_robin(ids, tasks) for name, ids in splits.items()}
     splits.update({name: sorted(ids) for name, ids in per_level.items()})
+    splits.update({name: _round_robin(ids, tasks) for name, ids in fresh.items()})
     return {
         "domain": "babyai", "version": VERSION, "seed": seed, "minigrid": minigrid.__version__,
         "note": (f"gpl_babyai.generate.make_table({seed}): per trained level {TRAIN}/{VALID}/{TEST} train/valid/test "
                  f"tasks, per held-out level {HELDOUT} (heldout_level_test); a seed is a task when minigrid's BabyAI "
                  f"bot solves it from its start in at most {BOT_STEP_CAP} steps and its mission has at most "
                  f"{MAX_WORDS} words; the mixed splits list their tasks round-robin over the levels, the per-level "
-                 "splits (test_<Level>, heldout_<Level>) are sorted; task rows: [level index, seed, mission, bot steps]"),
+                 "splits (test_<Level>, heldout_<Level>) are sorted; fresh_test and fresh_heldout_level_test: "
+                 f"per level the first {FRESH} accepted seeds from {FRESH_SEED_START} on, rows after all others; "
+                 "task rows: [level index, seed, mission, bot steps]"),
         "levels": list(levels),
         "acceptance": stats,
+        "fresh_acceptance": fresh_stats,
         "tasks": tasks,
         "splits": {k: [int(t) for t in v] for k, v in splits.items()},
     }

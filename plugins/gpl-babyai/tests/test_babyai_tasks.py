@@ -20,7 +20,7 @@ from gpl_dist.splits import load_splits
 
 def test_the_domain_is_found_through_its_entry_point():
     spec = get_domain("babyai")
-    assert spec is DOMAIN and spec.num_tasks == len(task_table.tasks()) == 1270
+    assert spec is DOMAIN and spec.num_tasks == len(task_table.tasks()) == 1490
     assert load_splits("babyai") == task_table.splits()
 
 
@@ -30,12 +30,13 @@ def test_levels_and_split_sizes():
     assert {"GoToLocal", "PickupLoc", "PutNextLocal", "GoTo", "Pickup", "Open", "Unlock", "SynthLoc"} <= set(table["levels"])
     assert "GoToSeq" in generate.TRAIN_LEVELS and "BossLevel" in generate.HELDOUT_LEVELS
     splits = task_table.splits()
+    fresh = set(splits["fresh_test"]) | set(splits["fresh_heldout_level_test"])
     for level in generate.TRAIN_LEVELS:
-        ids = set(task_table.tasks_of_level(level))
+        ids = set(task_table.tasks_of_level(level)) - fresh
         assert [len(ids & set(splits[s])) for s in ("train", "valid", "test")] == [generate.TRAIN, generate.VALID, generate.TEST]
         assert sorted(ids & set(splits["test"])) == list(splits[f"test_{level}"])
     for level in generate.HELDOUT_LEVELS:
-        ids = set(task_table.tasks_of_level(level))
+        ids = set(task_table.tasks_of_level(level)) - fresh
         assert ids == set(splits[f"heldout_{level}"]) and ids <= set(splits["heldout_level_test"])
         assert not ids & (set(splits["train"]) | set(splits["valid"]) | set(splits["test"]))
 
@@ -43,7 +44,7 @@ def test_levels_and_split_sizes():
 def test_splits_use_disjoint_seeds_and_never_train_on_a_test_task():
     splits = task_table.splits()
     seeds = {name: {(task_table.task(t).level, task_table.task(t).seed) for t in splits[name]}
-             for name in ("train", "valid", "test", "heldout_level_test")}
+             for name in ("train", "valid", "test", "heldout_level_test", "fresh_test", "fresh_heldout_level_test")}
     names = list(seeds)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
@@ -52,9 +53,26 @@ def test_splits_use_disjoint_seeds_and_never_train_on_a_test_task():
     assert DOMAIN.valid_splits == {"train": "valid"} and (DOMAIN.train_split, DOMAIN.eval_split) == ("train", "test")
 
 
+def test_fresh_tasks_are_seeds_no_other_split_considered_and_follow_every_other_row():
+    """``fresh_test`` / ``fresh_heldout_level_test``: per level ``FRESH`` seeds from ``FRESH_SEED_START``
+    on, above every candidate seed the other splits looked at; their rows come last, so the other
+    splits' task ids are those of a table without them."""
+    table, splits = task_table.table(), task_table.splits()
+    fresh = set(splits["fresh_test"]) | set(splits["fresh_heldout_level_test"])
+    others = set().union(*(set(ids) for name, ids in splits.items() if not name.startswith("fresh_")))
+    assert min(fresh) == max(others) + 1 and max(fresh) == len(task_table.tasks()) - 1
+    for level in generate.TRAIN_LEVELS + generate.HELDOUT_LEVELS:
+        name = "fresh_heldout_level_test" if level in generate.HELDOUT_LEVELS else "fresh_test"
+        rows = [task_table.task(t) for t in splits[name] if task_table.task(t).level == level]
+        assert len(rows) == generate.FRESH
+        assert min(r.seed for r in rows) >= generate.FRESH_SEED_START > table["acceptance"][level]["candidates"]
+        assert table["fresh_acceptance"][level]["candidates"] >= generate.FRESH
+
+
 def test_mixed_splits_take_every_level_in_turn():
     """gpl-dist takes a split's first N tasks (env.max_train_tasks, eval.max_tasks): any 9 in a row span the 9 levels."""
-    for name, levels in (("train", generate.TRAIN_LEVELS), ("test", generate.TRAIN_LEVELS)):
+    for name, levels in (("train", generate.TRAIN_LEVELS), ("test", generate.TRAIN_LEVELS),
+                         ("fresh_test", generate.TRAIN_LEVELS), ("fresh_heldout_level_test", generate.HELDOUT_LEVELS)):
         order = [task_table.task(t).level for t in task_table.splits()[name]]
         for start in range(0, len(order), len(levels)):
             assert sorted(order[start:start + len(levels)]) == sorted(levels)
