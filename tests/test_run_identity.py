@@ -18,10 +18,13 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
+from gpl_dist.app.rundir import run_checks
 from gpl_dist.cli import main
 from gpl_dist.errors import CheckpointError
 from learner.checkpoint import load_checkpoint, save_checkpoint
+from learner.identity import checkpoint_problems, resolve_identity
 from storage import committed_rounds, load_manifest
+from storage.verify import verify_buffer
 
 
 def _train(run: Path, seed: int) -> Path:
@@ -79,14 +82,15 @@ def test_a_round_of_another_run_is_refused_by_verify_and_resume(runs, tmp_path, 
         shutil.copytree(src, dst) if src.is_dir() else shutil.copyfile(src, dst)
     capsys.readouterr()
     assert main(["verify", str(mixed)]) == 2
-    out = capsys.readouterr().out
-    assert f"BAD  manifests/round-000001.json: round 1 belongs to run {_id(b)}, not to this buffer's run {_id(a)}" in out
-    assert "1 problem(s)" not in out or "0 problem(s)" not in out
+    assert "manifests/round-000001.json" in capsys.readouterr().out
+    report = verify_buffer(mixed / "buffer")
+    assert report.run_id == _id(a)
+    assert ("manifests/round-000001.json", 1, "foreign") in [(p.path, p.round_index, p.kind) for p in report.problems]
     before = _files(mixed)
     assert main(["train", "--run-dir", str(mixed), "--resume", "--serial", "--no-progress",
                  "--set", "training.num_rounds=3"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and _id(a) in err and _id(b) in err and "no new work was started" in err
+    assert len(err.splitlines()) == 1 and _id(a) in err and _id(b) in err
     assert {k: v for k, v in _files(mixed).items() if not k.endswith(".lock")} == \
         {k: v for k, v in before.items() if not k.endswith(".lock")}
 
@@ -97,12 +101,14 @@ def test_a_checkpoint_of_another_run_is_refused_by_verify_and_resume(runs, tmp_p
     shutil.copyfile(b / "checkpoints" / "latest.pt", mixed / "checkpoints" / "latest.pt")
     capsys.readouterr()
     assert main(["verify", str(mixed)]) == 2
-    out = capsys.readouterr().out
-    assert f"latest.pt: a checkpoint of run {_id(b)}, not of this run {_id(a)}" in out
+    assert str(mixed / "checkpoints" / "latest.pt") in capsys.readouterr().out
+    assert [p for p, _ in checkpoint_problems(mixed, _id(a))] == [str(mixed / "checkpoints" / "latest.pt")]
+    before = _files(mixed)
     assert main(["train", "--run-dir", str(mixed), "--resume", "--serial", "--no-progress",
                  "--set", "training.num_rounds=3"]) == 2
-    err = capsys.readouterr().err
-    assert f"is a checkpoint of run {_id(b)}" in err and _id(a) in err
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and _id(b) in err and _id(a) in err
+    assert _files(mixed) == before
 
 
 def test_eval_teach_and_serve_refuse_a_foreign_checkpoint_and_write_nothing_into_the_run(runs, tmp_path, capsys):
@@ -150,8 +156,9 @@ def test_a_run_made_before_identities_is_legacy_and_keeps_working(runs, tmp_path
         torch.save(raw, path)
     capsys.readouterr()
     assert main(["verify", str(old)]) == 0  # its marker and manifests name one run: the legacy id is the marker's
-    out = capsys.readouterr().out
-    assert "no run.json" in out and "0 problem(s)" in out
+    identity = resolve_identity(old, str(old / "buffer"))
+    assert identity.inferred and identity.run_id == _id(a)
+    assert run_checks(str(old), str(old / "buffer")).problems == () and verify_buffer(old / "buffer").ok
     # a true legacy buffer: every id is the dir's name
     for path in [old / "buffer" / "_gpl-dist-buffer.json", *(old / "buffer" / "manifests").glob("round-*.json")]:
         path.write_text(path.read_text().replace(_id(a), "old"))

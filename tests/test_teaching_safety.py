@@ -76,16 +76,16 @@ def test_temporaries_in_a_teaching_log_change_nothing_that_export_reads(teacher,
     expected = pads.dataset(str(log), format="parquet").to_table().num_rows
     assert expected == 3
     out = tmp_path / "datasets"
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
     assert main(["export", str(log), "--out", str(out), "--dataset-id", "gpl-dist/complete-tmp-v0"]) == 0
-    assert "3 episodes" in capsys.readouterr().out
+    assert minari.load_dataset("gpl-dist/complete-tmp-v0").total_episodes == 3
     (log / f"_tmp-ba9876543210-{two}.parquet").write_bytes(b"")  # empty: the write died at once
     (log / "_tmp-fedcba987654-x.parquet").write_bytes(b"PAR1\x00\x00")  # truncated
     assert pads.dataset(str(log), format="parquet").to_table().num_rows == expected
     assert main(["export", str(log), "--out", str(out), "--dataset-id", "gpl-dist/empty-tmp-v0"]) == 0
-    assert "3 episodes" in capsys.readouterr().out
-    monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
     for name in ("complete-tmp", "empty-tmp"):
         dataset = minari.load_dataset(f"gpl-dist/{name}-v0")
+        assert dataset.total_episodes == 3
         metas = list(dataset.storage.get_episode_metadata(dataset.episode_indices))
         assert sorted((m["episode"], m["attempt_index"]) for m in metas) == sorted([(one, 0), (one, 1), (two, 0)])
     # a folder of temporaries alone is no teaching log
@@ -154,7 +154,6 @@ def test_a_failed_export_leaves_nothing_that_blocks_a_retry(teacher, tmp_path, m
     assert not (out / "gpl-dist" / "retry-v0").exists()
     path.unlink()
     assert main(["export", str(log), "--out", str(out), "--dataset-id", "gpl-dist/retry-v0"]) == 0
-    assert "3 episodes" in capsys.readouterr().out
     monkeypatch.setenv("MINARI_DATASETS_PATH", str(out))
     assert minari.load_dataset("gpl-dist/retry-v0").total_episodes == 3
     assert not [p for p in _files(out) if Path(p).name.startswith(".")]  # the temporary folder was renamed
@@ -182,9 +181,9 @@ def test_serve_and_teach_with_out_a_file_fail_at_start_in_one_line(run, tmp_path
         pytest.fail("gpl-dist serve --out FILE started serving")
     err = done.stderr.strip()
     assert done.returncode == 2 and err.startswith("gpl-dist: error:") and "\n" not in err, err
-    assert "not a folder" in err and str(a_file) in err
+    assert str(a_file) in err
     assert main(["teach", "--run-dir", str(run), "--task", str(TASK), "--out", str(a_file)]) == 2
-    assert "not a folder" in _one_line_error(capsys)
+    assert str(a_file) in _one_line_error(capsys)
     assert a_file.read_text() == "x"
 
 
