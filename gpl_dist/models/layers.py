@@ -107,7 +107,7 @@ class _FirstConv2x2(torch.autograd.Function):
 
     Forward: one ``embedding_bag`` sum over the 4 taps x G groups of each output cell (no
     ``(B, H, W, 4 * out)`` intermediate). Backward: the tap gradients of each *cell* (one buffer,
-    one ``cat`` of shifted windows of the padded output gradient), then one ``index_add_`` per
+    the output gradient written shifted once per tap), then one ``index_add_`` per
     group over ``B*H*W`` rows of width ``4 * out``:
     4x fewer, wider rows than adding per output cell and tap, which is what makes it fast on a CPU.
     """
@@ -128,11 +128,12 @@ class _FirstConv2x2(torch.autograd.Function):
         (rows,) = ctx.saved_tensors
         b, h, w, g = rows.shape
         out = grad.shape[-1]
-        # cell (i, j) feeds output (i - di, j - dj) through tap k: with the output gradient padded by
-        # a zero border, tap k's gradient at every cell is one shifted window of it (zero where the
-        # tap feeds no output), and the four windows side by side are each cell's row, in one copy
-        padded = nn.functional.pad(grad, (0, 0, 1, 1, 1, 1))
-        per_cell = torch.cat([padded[:, 1 - di:1 - di + h, 1 - dj:1 - dj + w] for di, dj in _TAPS], dim=-1)
+        # cell (i, j) feeds output (i - di, j - dj) through tap k: tap k's gradient over the cells is
+        # the output gradient shifted by (di, dj), zero where the tap feeds no output; the four taps
+        # side by side are each cell's row
+        per_cell = grad.new_zeros(b, h, w, 4, out)
+        for k, (di, dj) in enumerate(_TAPS):
+            per_cell[:, di:di + h - 1, dj:dj + w - 1, k] = grad
         per_cell = per_cell.view(-1, 4 * out)
         grad_table = grad.new_zeros(ctx.table_shape)
         for j in range(g):
