@@ -226,7 +226,8 @@ def build_report(runs: str | Path, out: str | Path, source: str | Path | None = 
     if not runs.is_dir():
         raise RunDirError(f"no suite output at {runs}")
     out.mkdir(parents=True, exist_ok=True)
-    data = read_report_data(runs, Path(report_dir) if report_dir is not None else out, log)
+    shown_from = Path(report_dir) if report_dir is not None else out
+    data = read_report_data(runs, shown_from, log)
     source = str(Path(source) if source is not None else runs)
     paper = load_paper()
     entries = list(data.plan.seeds) or sorted({r.entry for r in data.every})
@@ -240,7 +241,7 @@ def build_report(runs: str | Path, out: str | Path, source: str | Path | None = 
                              + run_sections(data, out, source, paper)))
     else:
         where = (", archived beside this report in `runs/` with each run's config, metrics and final weights"
-                 if runs.resolve() == (out / ARCHIVE_DIR).resolve() else f" in `{runs}`")
+                 if runs.resolve() == (shown_from / ARCHIVE_DIR).resolve() else f" in `{runs}`")
         tests = (f"Welch's two-sided t-test of every entry against the suite's reference entry `{data.plan.reference}`"
                  if data.plan.reference else "no test between entries: the suite file names no reference entry "
                  "(a top-level `reference: <entry>`)")

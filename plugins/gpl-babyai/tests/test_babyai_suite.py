@@ -33,10 +33,10 @@ def test_the_babyai_suite_trains_four_methods_at_five_seeds_and_tests_every_leve
 
 
 def test_suite_status_reads_the_archived_babyai_runs_without_importing_the_plug_in(tmp_path):
-    """The study's archived runs (``docs/babyai-report/runs``), restored, count as done for
-    ``suite status``, a read-only command that imports no plug-in (a fresh process, as a user runs
-    it): the fields the entry leaves to the domain (its expert, its splits) are the runs' own, not
-    a changed config."""
+    """The study's archived runs (``docs/babyai-report/runs``), restored, are the whole study (every
+    entry at every training seed, every evaluation made) and count as done for ``suite status``, a
+    read-only command that imports no plug-in (a fresh process, as a user runs it): the fields the
+    entry leaves to the domain (its expert, its splits) are the runs' own, not a changed config."""
     import subprocess
     import sys
 
@@ -49,5 +49,27 @@ def test_suite_status_reads_the_archived_babyai_runs_without_importing_the_plug_
     assert cli("suite", "restore", str(archive), "--out", str(out)).returncode == 0
     status = cli("suite", "status", str(SUITE), "--out", str(out))
     assert status.returncode == 0, status.stderr[-500:]
-    done = [line for line in status.stdout.splitlines() if line.startswith("done")]
-    assert len(done) >= 4 and all("babyai-gpl" in line for line in done)
+    states = {}
+    for line in status.stdout.splitlines():
+        words = line.split()
+        if len(words) > 3 and words[2] == "seed":  # "<state> <entry> seed <k> (<run dir>; ...)"
+            states[(words[1], int(words[3]))] = words[0]
+    planned = {(run.entry.name, run.seed) for run in plan(load_suite(SUITE), out)}
+    assert len(planned) == 20 and states == {key: "done" for key in planned}
+
+
+def test_the_babyai_report_is_regenerated_byte_for_byte_from_its_archive(tmp_path):
+    """Every file of docs/babyai-report (report.md, report.html, each plot) from its archived runs,
+    the report naming the suite output it was made from, as the committed one does."""
+    import re
+
+    from gpl_dist.app.suite.report import build_report
+
+    report_dir = SUITE.parents[2] / "docs" / "babyai-report"
+    committed = (report_dir / "report.md").read_text()
+    source = re.search(r"Written by `gpl-dist suite report (\S+)`", committed).group(1)
+    build_report(report_dir / "runs", tmp_path, source=source, report_dir=report_dir, log=lambda _: None)
+    expected = sorted(p.name for p in report_dir.iterdir() if p.is_file())
+    assert sorted(p.name for p in tmp_path.iterdir()) == expected and "report.md" in expected
+    for name in expected:
+        assert (tmp_path / name).read_bytes() == (report_dir / name).read_bytes(), name
