@@ -302,9 +302,12 @@ def test_grid_encoder_is_a_conv2d_over_one_hot_channels(channels):
 
 
 def test_first_conv_backward_is_bitwise_the_tap_by_tap_sum():
-    """The first layer's table gradient, built from shifted windows of the padded output gradient,
-    equals bit for bit the sum written tap by tap (each cell's gradient of every tap, zero where a
-    tap feeds no output, added into its group's rows): the same numbers added in the same order."""
+    """The first layer's table gradient equals bit for bit the sum written as the definition reads:
+    for each output cell and tap, its gradient added into the row of the cell that tap reads, in
+    cell order (each cell's four taps side by side, from a zero-padded output gradient): the same
+    numbers added in the same order."""
+    from torch import nn
+
     from gpl_dist.models.layers import _TAPS, GridStateEncoder, _FirstConv2x2
     d = get_domain("multiroom")
     torch.manual_seed(0)
@@ -315,12 +318,12 @@ def test_first_conv_backward_is_bitwise_the_tap_by_tap_sum():
     upstream = torch.randn(out.shape, generator=torch.Generator().manual_seed(1))
     (grad_table,) = torch.autograd.grad(out, table, upstream)
     b, h, w, g = rows.shape
-    per_cell = torch.zeros(b, h, w, 4, out.shape[-1])
-    for k, (di, dj) in enumerate(_TAPS):
-        per_cell[:, di:di + h - 1, dj:dj + w - 1, k] = upstream
+    padded = nn.functional.pad(upstream, (0, 0, 1, 1, 1, 1))  # cell (i, j) feeds output (i - di, j - dj)
+    per_cell = torch.cat([padded[:, 1 - di:1 - di + h, 1 - dj:1 - dj + w] for di, dj in _TAPS], dim=-1)
     want = torch.zeros_like(table)
     for j in range(g):
-        want.index_add_(0, rows[..., j].reshape(-1), per_cell.view(-1, table.shape[1]))
+        want.index_add_(0, rows[..., j].reshape(-1), per_cell.reshape(-1, table.shape[1]))
+    assert per_cell.abs().sum() > 0 and grad_table.abs().sum() > 0
     assert torch.equal(grad_table, want)
 
 

@@ -411,8 +411,11 @@ def test_resume_refuses_another_model_or_domain_and_does_nothing_once_finished(r
     before = _snapshot(run_copy)
     for override, needle in [("model.variant=instruction_only", "model.variant"),
                              ("model.embedding_dim=8", "model.embedding_dim")]:
+        key, value = override.split("=")
+        section, field = key.split(".")
+        config_from_dict({section: {field: value if field == "variant" else int(value)}})  # a valid config
         assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress", "--set", override]) == 2
-        _one_line_error(capsys, needle)
+        _one_line_error(capsys, needle)  # so the refusal is resume's: the run's own value cannot change
     # a resubmitted job of a finished run: nothing to do, exit 0, nothing rewritten
     assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress"]) == 0
     assert _snapshot(run_copy) == before
@@ -486,12 +489,12 @@ def test_config_text_mistakes_are_named(tmp_path, capsys):
     binary.write_bytes(bytes(range(256)))
     for args, needle in [(["--config", str(twice)], "'num_rounds'"),
                          (["--config", str(binary)], str(binary)),
-                         (["--config", "configs/multiroom-smoke.yaml", "--set", "seed=" + "9" * 5000], "seed="),
+                         (["--config", "configs/multiroom-smoke.yaml", "--set", "seed=" + "9" * 5000], "seed='999"),
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "eval.seeds=[1,1]"], ": eval.seeds"),
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "collection.num_corrections=1000"],
                           ": collection.num_corrections"),
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "env.domain=" + "x" * 100_000],
-                          "env.domain"),
+                          "100000"),  # the value's length, not the value
                          (["--config", "configs/multiroom-smoke.yaml", "--set", "env.domain=" + "x" * 5000],
                           ": env.domain")]:
         assert main(["train", *args, "--serial", "--run-dir", str(tmp_path / "run")]) == 2
