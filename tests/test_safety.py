@@ -23,7 +23,7 @@ import torch
 from _cluster_tools import GPL_DIST, TINY_YAML, kill_session, pids_mentioning, quiet_env, short_temp_dir, wait_for
 
 from gpl_dist.cli import main
-from gpl_dist.config import ConfigError, config_from_dict
+from gpl_dist.config import ConfigError, config_from_dict, load_config
 from gpl_dist.domains import get_domain
 from storage.verify import MISSING_NOTE, verify_buffer
 
@@ -411,9 +411,7 @@ def test_resume_refuses_another_model_or_domain_and_does_nothing_once_finished(r
     before = _snapshot(run_copy)
     for override, needle in [("model.variant=instruction_only", "model.variant"),
                              ("model.embedding_dim=8", "model.embedding_dim")]:
-        key, value = override.split("=")
-        section, field = key.split(".")
-        config_from_dict({section: {field: value if field == "variant" else int(value)}})  # a valid config
+        load_config(run_copy / "config.yaml", dict([override.split("=")]))  # the override itself is valid
         assert main(["train", "--run-dir", str(run_copy), "--resume", "--serial", "--no-progress", "--set", override]) == 2
         _one_line_error(capsys, needle)  # so the refusal is resume's: the run's own value cannot change
     # a resubmitted job of a finished run: nothing to do, exit 0, nothing rewritten

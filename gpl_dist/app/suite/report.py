@@ -23,6 +23,7 @@ report is computed from that archive, so every number traces to a file kept with
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -264,6 +265,19 @@ def write_report(suite_out: str | Path, out: str | Path) -> tuple[Path, Path]:
     archive.mkdir(parents=True, exist_ok=True)
     archive_runs(suite_out, archive)
     return build_report(archive, out, source=suite_out)
+
+
+def rebuild_report(report_dir: str | Path, out: str | Path, log=print) -> tuple[Path, Path]:
+    """The report in ``report_dir`` written again into ``out`` from its own archive
+    (``report_dir/runs``): naming the suite output its ``report.md`` names and showing paths as from
+    ``report_dir``, so that the files equal the committed ones byte for byte when the code that
+    wrote them is the code here. A ``report.md`` without that line fails in one line (``RunDirError``)."""
+    report_dir = Path(report_dir)
+    md = report_dir / "report.md"
+    found = re.search(r"Written by `gpl-dist suite report (\S+)`", md.read_text()) if md.is_file() else None
+    if found is None:
+        raise RunDirError(f"{md} names no suite output it was written from")
+    return build_report(report_dir / ARCHIVE_DIR, out, source=found.group(1), report_dir=report_dir, log=log)
 
 
 def swap_markdown(results: Sequence[RunResult], health: Mapping[Path, RunHealth]) -> str:
