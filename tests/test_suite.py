@@ -131,6 +131,29 @@ def test_a_run_made_by_another_version_of_its_entry_is_refused(tmp_path, capsys)
     _one_line_error(capsys, "another config than entry 'gpl'")
 
 
+def test_another_suite_evaluates_a_run_it_did_not_train_under_its_own_settings(tmp_path):
+    """An entry trained the same way under another suite, whose first evaluation differs (the run's
+    config.yaml holds that evaluation's eval section), is the same training: kept, and evaluated
+    under this suite's evaluations only; its own evaluations stay as they were."""
+    out = tmp_path / "out"
+    first = load_suite(write_suite(tmp_path / "a.yaml", {"gpl": entry()}))
+    run_suite(first, out, serial=True, progress=False)
+    run_dir = out / "gpl" / "seed0"
+    test_eval = (run_dir / "eval.json").read_bytes()
+    checkpoints = sorted(p.name for p in (run_dir / "checkpoints").iterdir())
+    valid = {"valid": {"split": "valid", "seeds": [0], "num_corrections": 1, "greedy_actions": False, "max_tasks": 3}}
+    second = load_suite(write_suite(tmp_path / "b.yaml", {"gpl": entry(evaluations=("valid",))}, valid))
+    (run,) = plan(second, out)
+    assert run_state(run, second) == "evaluate"
+    run_suite(second, out, serial=True, progress=False)
+    assert run_state(run, second) == "done"
+    record = json.loads((run_dir / "suite-run.json").read_text())
+    assert sorted(record["evaluations"]) == ["test", "valid"]
+    assert record["evaluations"]["valid"]["settings"]["split"] == "valid"
+    assert (run_dir / "eval.json").read_bytes() == test_eval
+    assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == checkpoints  # nothing trained again
+
+
 def test_the_report_holds_every_paper_row_and_only_numbers_from_eval_files(tmp_path):
     """Tiny real runs of three of the paper's entries: under their own suite file (three entries)
     the report is that suite's, with its rows and none of the paper's; under the paper's suite file

@@ -98,9 +98,12 @@ def trained_as_here(run: SuiteRun, here: str) -> bool | None:
 
 
 def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
-    """A run dir made by another version of its entry is refused: its results would be mixed. A
+    """A run dir trained by another version of its entry is refused: its results would be mixed. A
     field the entry leaves to a domain that is not loaded here (``gpl_dist.config.DOMAIN_FILLED``) is not the
-    entry's to decide, so the run's own value stands for it."""
+    entry's to decide, so the run's own value stands for it. The ``eval`` section is not compared:
+    it does not touch training, and a suite evaluates each run under its named evaluations' own
+    settings (recorded with each evaluation), so another suite may evaluate a run it did not train
+    (``configs/suites/speed-valid.yaml`` reads the paper suite's archived runs on the valid split)."""
     saved_path = run.run_dir / "config.yaml"
     if not saved_path.is_file():
         return
@@ -109,9 +112,16 @@ def _check_unchanged(run: SuiteRun, cfg: RunConfig) -> None:
         if getattr(getattr(cfg, section), key) == "":
             part = dataclasses.replace(getattr(cfg, section), **{key: getattr(getattr(saved, section), key)})
             cfg = dataclasses.replace(cfg, **{section: part})
-    if results_dict(saved) != results_dict(cfg):
+    if _training(saved) != _training(cfg):
         raise ConfigError(f"{run.run_dir} was trained with another config than entry '{run.entry.name}' gives now "
                           "(the suite file or the base config changed): use another --out, or remove that run dir")
+
+
+def _training(cfg: RunConfig) -> dict:
+    """What a run's trained files depend on: ``results_dict`` without the ``eval`` section."""
+    out = results_dict(cfg)
+    out.pop("eval", None)
+    return out
 
 
 def run_state(run: SuiteRun, suite: Suite) -> str:
