@@ -29,8 +29,8 @@ learner computes against what this CPU can compute, all measured in this run:
   ``training.autocast=bf16`` on the same tensors, and its ratio to the fp32 learner.
 
 ``--vs KEY=VALUE`` (repeatable) then times the learner with those overrides against the config's own,
-on the same tensors, in ``--vs-pairs`` pairs one after the other (the config's learner, then the
-changed one), and prints each pair's ratio and their median: the side-by-side figure of a speed
+on the same tensors, in ``--vs-pairs`` pairs one after the other (which goes first alternates from
+pair to pair), and prints each pair's ratio and their median: the side-by-side figure of a speed
 change. A change that alters numerics is judged on the valid split as well
 (``configs/suites/speed-valid.yaml``).
 
@@ -180,6 +180,9 @@ def bench_domain(domain: str, args) -> None:
     from storage import BufferReader
 
     cfg = load_cfg(domain, dict(kv.split("=", 1) for kv in args.set))
+    # a bad --vs key fails here, in one line, before a buffer is collected
+    changed = load_cfg(domain, {**dict(kv.split("=", 1) for kv in args.set),
+                                **dict(kv.split("=", 1) for kv in args.vs)}) if args.vs else None
     root = args.buffer or str(Path(tempfile.mkdtemp(prefix="gpl-learner-bench-")) / "buffer")
     if not args.buffer:
         t0 = time.perf_counter()
@@ -211,15 +214,19 @@ def bench_domain(domain: str, args) -> None:
     ratio_target, peak_target = TARGETS.get(domain, (None, None))
     print(f"[{domain}] ratio gpl-dist / plain: {ours_rate / plain_rate:.2f}x"
           + (f" (target >= {ratio_target:.0f}x)" if ratio_target else ""), flush=True)
-    if args.vs:
-        changed = load_cfg(domain, {**dict(kv.split("=", 1) for kv in args.set), **dict(kv.split("=", 1) for kv in args.vs)})
+    if changed is not None:
         ratios = []
-        for _ in range(args.vs_pairs):
-            base_s, base_n, _ = gpl_dist_learner(cfg, tv, args.epochs)
-            vs_s, vs_n, _ = gpl_dist_learner(changed, tv, args.epochs)
-            ratios.append((vs_n / vs_s) / (base_n / base_s))
-            print(f"[{domain}] pair: config {base_n / base_s:>9,.0f} samples/s, with {' '.join(args.vs)} "
-                  f"{vs_n / vs_s:>9,.0f}: {ratios[-1]:.2f}x", flush=True)
+        for pair in range(args.vs_pairs):
+            # alternate which goes first (ABBA...): a machine that warms or drifts favours neither
+            first, second = (cfg, changed) if pair % 2 == 0 else (changed, cfg)
+            rates = {}
+            for which in (first, second):
+                secs, n, _ = gpl_dist_learner(which, tv, args.epochs)
+                rates[which is changed] = n / secs
+            ratios.append(rates[True] / rates[False])
+            print(f"[{domain}] pair ({'config first' if pair % 2 == 0 else 'changed first'}): config "
+                  f"{rates[False]:>9,.0f} samples/s, with {' '.join(args.vs)} {rates[True]:>9,.0f}: "
+                  f"{ratios[-1]:.2f}x", flush=True)
         print(f"[{domain}] with {' '.join(args.vs)}: median {float(np.median(ratios)):.2f}x the config's learner "
               f"over {len(ratios)} pairs", flush=True)
     from learner.cpu import matmul_gflops, native_bf16
@@ -278,8 +285,13 @@ def main() -> None:
     domains = ("multiroom", "relocation") if args.domain == "both" else (args.domain,)
     if args.buffer and len(domains) > 1:
         p.error("--buffer holds one domain's data: also pass --domain")
+    from gpl_dist.config import ConfigError
+
     for domain in domains:
-        bench_domain(domain, args)
+        try:
+            bench_domain(domain, args)
+        except ConfigError as err:  # a bad --set or --vs: one line, before anything is collected
+            p.error(str(err))
 
 
 if __name__ == "__main__":

@@ -140,6 +140,7 @@ def test_another_suite_evaluates_a_run_it_did_not_train_under_its_own_settings(t
     run_suite(first, out, serial=True, progress=False)
     run_dir = out / "gpl" / "seed0"
     test_eval = (run_dir / "eval.json").read_bytes()
+    curve = (run_dir / "curve-valid.json").read_bytes()  # capped at this suite's 4 tasks
     checkpoints = sorted(p.name for p in (run_dir / "checkpoints").iterdir())
     valid = {"valid": {"split": "valid", "seeds": [0], "num_corrections": 1, "greedy_actions": False, "max_tasks": 3}}
     second = load_suite(write_suite(tmp_path / "b.yaml", {"gpl": entry(evaluations=("valid",))}, valid))
@@ -151,6 +152,7 @@ def test_another_suite_evaluates_a_run_it_did_not_train_under_its_own_settings(t
     assert sorted(record["evaluations"]) == ["test", "valid"]
     assert record["evaluations"]["valid"]["settings"]["split"] == "valid"
     assert (run_dir / "eval.json").read_bytes() == test_eval
+    assert (run_dir / "curve-valid.json").read_bytes() == curve  # the training suite's curve, not measured again
     assert sorted(p.name for p in (run_dir / "checkpoints").iterdir()) == checkpoints  # nothing trained again
 
 

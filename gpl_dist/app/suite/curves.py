@@ -45,11 +45,13 @@ def run_config(checkpoint: Path) -> RunConfig:
     return config_from_dict(load_checkpoint(checkpoint).config, f"{checkpoint} (its config)")
 
 
-def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print) -> Path | None:
+def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings(), log=print,
+                  replace_other: bool = True) -> Path | None:
     """Fill ``run_dir/curve-valid.json`` with every round's completion on the run's valid split
     (resumes a partial file of the same settings; a file of other settings, another split among
-    them, is measured again; a file that is no ``CurveRecord`` fails in one line naming it); None
-    when the run dir keeps no per-round weights or its training split has no valid split."""
+    them, is measured again, or with ``replace_other=False`` kept as it is; a file that is no
+    ``CurveRecord`` fails in one line naming it); None when the run dir keeps no per-round weights
+    or its training split has no valid split."""
     run_dir = Path(run_dir)
     ckpts = round_checkpoints(run_dir)
     if not ckpts:
@@ -64,6 +66,8 @@ def compute_curve(run_dir: str | Path, settings: CurveSettings = CurveSettings()
         old = read_curve(path)
         if old.settings == settings:
             record = old
+        elif not replace_other:
+            return path
     done = set(record.checkpoints)
     for ckpt in ckpts:
         if ckpt.name in done:

@@ -202,7 +202,10 @@ def _evaluate(run: SuiteRun, suite: Suite, names: list[str], log, commit: str, r
 def _valid_curve(run: SuiteRun, suite: Suite, log) -> None:
     """The run's valid learning curve (``gpl_dist.app.suite.curves``), while its per-round weights are
     there: a training split without a valid split has none; an entry whose first evaluation caps
-    its tasks (a quick suite) caps the curve's too."""
+    its tasks (a quick suite) caps the curve's too. A curve of other settings (made by the suite
+    that trained the run, when another suite evaluates it) is kept: ``gpl-dist suite curves``
+    measures it again when asked."""
     cap = suite.evaluations[run.entry.evaluations[0]].config.max_tasks
     settings = CurveSettings(tasks=min(CURVE_TASKS, cap) if cap else CURVE_TASKS)
-    compute_curve(run.run_dir, settings, log=lambda line: log(f"[{run.entry.name} seed {run.seed}] {line}"))
+    compute_curve(run.run_dir, settings, log=lambda line: log(f"[{run.entry.name} seed {run.seed}] {line}"),
+                  replace_other=False)
